@@ -1,0 +1,1 @@
+"""Polhemus Liberty magnetic tracker: protocol codec, driver and device emulator."""

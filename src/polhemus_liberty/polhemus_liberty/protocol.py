@@ -1,0 +1,500 @@
+"""Polhemus Liberty host protocol: commands, output items, record codecs, stream parsers.
+
+Pure Python (no ROS, no serial port): the driver, the device emulator and the tests all
+speak the protocol through this one module. The layout facts are those of
+``shared/liberty-protocol.md``:
+
+* binary (``F1``) records: ``'LY'``, station (1-16), initiating command (``C``/``P``),
+  error byte (0x20 = no error), a reserved byte, the payload size as uint16 little-endian,
+  then the output items in list order, little-endian;
+* ASCII (``F0``) records: one CR LF terminated line per station, a 4-character header
+  (station in two characters, command, error) and fixed-width numeric fields.
+
+The stream parsers never raise on device bytes: they resynchronise after garbage, partial
+reads, wrong size fields or impossible station numbers, and count what they dropped.
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+__all__ = [
+    'ITEMS', 'OutputItem', 'OutputList', 'StationRecord', 'Reply', 'ParserStats',
+    'BinaryStreamParser', 'AsciiStreamParser', 'make_stream_parser',
+    'encode_binary_record', 'encode_binary_reply', 'format_ascii_record',
+    'cmd_format', 'cmd_units', 'cmd_output_list', 'cmd_hemisphere', 'cmd_frame_rate',
+    'CMD_CONTINUOUS', 'CMD_SINGLE', 'CMD_FLUSH', 'CMD_STATION_MAP', 'CMD_WHOAMI',
+    'CMD_RESET_COUNTERS', 'CTRL_U', 'CTRL_V', 'NO_ERROR', 'MAX_STATIONS',
+    'DEFAULT_OUTPUT_ITEMS', 'link_bytes_per_second', 'decode_station_map',
+]
+
+SYNC_LIBERTY = b'LY'
+HEADER = struct.Struct('<2sBBBBH')  # sync, station, command, error, reserved, payload size
+HEADER_SIZE = HEADER.size  # 8
+NO_ERROR = 0x20
+MAX_STATIONS = 16
+DATA_COMMANDS = frozenset(b'CP')  # continuous, single-shot
+CTRL_U = 0x15  # active station map
+CTRL_V = 0x16  # WhoAmI
+MAX_REPLY_PAYLOAD = 1024
+
+
+@dataclass(frozen=True)
+class OutputItem:
+    """One entry of the Liberty output list (``O*,...``).
+
+    ``fmt`` is the binary struct code (little-endian, no prefix), ``field`` the
+    :class:`StationRecord` attribute it fills, ``ascii_format`` the printf format of one
+    value in ASCII mode (its width is the field width).
+    """
+
+    code: int
+    name: str
+    fmt: str
+    field: str | None
+    ascii_format: str | None
+
+    @property
+    def size(self) -> int:
+        return struct.calcsize('<' + self.fmt)
+
+    @property
+    def count(self) -> int:
+        """Number of values this item carries (0 for padding and CR LF)."""
+        if self.field is None:
+            return 0
+        return len(struct.unpack('<' + self.fmt, bytes(self.size)))
+
+
+ITEMS: dict[int, OutputItem] = {item.code: item for item in (
+    OutputItem(0, 'space', 'x', None, None),
+    OutputItem(1, 'crlf', '2s', None, None),
+    OutputItem(2, 'position', '3f', 'position', '%9.4f'),
+    OutputItem(3, 'position_ext', '3f', 'position', '%13.6e'),
+    OutputItem(4, 'euler', '3f', 'euler_deg', '%9.4f'),
+    OutputItem(5, 'euler_ext', '3f', 'euler_deg', '%13.6e'),
+    OutputItem(6, 'direction_cosines', '9f', 'direction_cosines', '%9.5f'),
+    OutputItem(7, 'quaternion', '4f', 'quaternion_wxyz', '%9.5f'),
+    OutputItem(8, 'timestamp', 'I', 'timestamp_ms', '%11d'),
+    OutputItem(9, 'frame_count', 'I', 'frame_count', '%11d'),
+    OutputItem(10, 'stylus', 'I', 'stylus', '%3d'),
+    OutputItem(11, 'distortion', 'i', 'distortion', '%4d'),
+    OutputItem(12, 'external_sync', 'I', 'external_sync', '%3d'),
+)}
+
+# Timestamp, frame count, position, quaternion, CR LF: 46-byte records (the protocol notes'
+# worked example). The quaternion avoids the Euler singularity at elevation +-90 degrees.
+DEFAULT_OUTPUT_ITEMS = (8, 9, 2, 7, 1)
+
+
+@dataclass
+class StationRecord:
+    """One station's data from one tracker frame, in device units (cm or inches, degrees).
+
+    Fields the output list does not carry stay None.
+    """
+
+    station: int
+    command: str = 'C'
+    error: int = NO_ERROR
+    position: tuple[float, float, float] | None = None
+    euler_deg: tuple[float, float, float] | None = None
+    direction_cosines: tuple[float, ...] | None = None
+    quaternion_wxyz: tuple[float, float, float, float] | None = None
+    timestamp_ms: int | None = None
+    frame_count: int | None = None
+    stylus: int | None = None
+    distortion: int | None = None
+    external_sync: int | None = None
+
+
+@dataclass
+class Reply:
+    """A device reply that is not a data record (station map, WhoAmI, ASCII text)."""
+
+    command: int
+    station: int
+    payload: bytes
+
+
+class OutputList:
+    """A validated output item list with its binary layout and ASCII field widths."""
+
+    def __init__(self, codes: Iterable[int]):
+        codes = tuple(int(c) for c in codes)
+        unknown = [c for c in codes if c not in ITEMS]
+        if not codes or unknown:
+            raise ValueError(f'output list {list(codes)}: unknown item codes {unknown}; '
+                             f'allowed are {sorted(ITEMS)}')
+        fields = [ITEMS[c].field for c in codes if ITEMS[c].field]
+        if len(fields) != len(set(fields)):
+            raise ValueError(f'output list {list(codes)} carries the same quantity twice')
+        if 1 in codes and codes[-1] != 1:
+            raise ValueError(f'output list {list(codes)}: CR LF (item 1) must come last')
+        self.codes = codes
+        self.items = tuple(ITEMS[c] for c in codes)
+        self.payload_struct = struct.Struct('<' + ''.join(i.fmt for i in self.items))
+        self.payload_size = self.payload_struct.size
+        self.record_size = HEADER_SIZE + self.payload_size
+        self.ends_with_crlf = codes[-1] == 1
+        self.value_items = tuple(i for i in self.items if i.field)
+        self.value_count = sum(i.count for i in self.value_items)
+
+    def __repr__(self) -> str:
+        return f'OutputList({list(self.codes)})'
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, OutputList) and other.codes == self.codes
+
+    def __hash__(self) -> int:
+        return hash(self.codes)
+
+    @property
+    def has_orientation(self) -> bool:
+        return any(c in self.codes for c in (4, 5, 6, 7))
+
+    @property
+    def has_position(self) -> bool:
+        return 2 in self.codes or 3 in self.codes
+
+    def record_from_values(self, station: int, command: str, error: int,
+                           flat: Sequence) -> StationRecord:
+        """Distribute a flat value sequence (in item order) over a :class:`StationRecord`."""
+        record = StationRecord(station=station, command=command, error=error)
+        index = 0
+        for item in self.value_items:
+            n = item.count
+            if n == 1:
+                setattr(record, item.field, flat[index])
+            else:
+                setattr(record, item.field, tuple(flat[index:index + n]))
+            index += n
+        return record
+
+    def values_of(self, record: StationRecord) -> list:
+        """Flat value list of ``record`` in item order (the inverse of record_from_values)."""
+        flat: list = []
+        for item in self.value_items:
+            value = getattr(record, item.field)
+            if value is None:
+                raise ValueError(f'record for station {record.station} lacks {item.name} '
+                                 f'(item {item.code}) required by {self}')
+            if item.count == 1:
+                flat.append(value)
+            else:
+                if len(value) != item.count:
+                    raise ValueError(f'{item.name} needs {item.count} values, got {len(value)}')
+                flat.extend(value)
+        return flat
+
+
+# ----------------------------------------------------------------------------- encoding
+
+def encode_binary_record(output_list: OutputList, record: StationRecord) -> bytes:
+    """The F1 bytes of one station record (what the device sends)."""
+    flat = output_list.values_of(record)
+    packed: list = []
+    index = 0
+    for item in output_list.items:
+        if item.code == 0:
+            continue  # 'x' pad byte takes no argument
+        if item.code == 1:
+            packed.append(b'\r\n')
+            continue
+        packed.extend(flat[index:index + item.count])
+        index += item.count
+    header = HEADER.pack(SYNC_LIBERTY, record.station, ord(record.command), record.error, 0,
+                         output_list.payload_size)
+    return header + output_list.payload_struct.pack(*packed)
+
+
+def encode_binary_reply(command: int, payload: bytes, station: int = 0) -> bytes:
+    """An F1 reply frame to a system command (e.g. the Ctrl-U station map)."""
+    return HEADER.pack(SYNC_LIBERTY, station, command, NO_ERROR, 0, len(payload)) + payload
+
+
+def format_ascii_record(output_list: OutputList, record: StationRecord) -> bytes:
+    """The F0 line of one station record, CR LF terminated."""
+    parts = [f'{record.station:2d}{record.command}{chr(record.error)}']
+    flat = output_list.values_of(record)
+    index = 0
+    for item in output_list.items:
+        if item.code == 0:
+            parts.append(' ')
+        elif item.field:
+            for value in flat[index:index + item.count]:
+                parts.append(item.ascii_format % value)
+            index += item.count
+    return (''.join(parts) + '\r\n').encode('ascii')
+
+
+def decode_station_map(payload: bytes) -> tuple[set[int], set[int]]:
+    """Detected and active stations from a Ctrl-U reply payload (two uint16 bit maps)."""
+    detected, active = struct.unpack_from('<HH', payload)
+    return ({s for s in range(1, MAX_STATIONS + 1) if detected >> (s - 1) & 1},
+            {s for s in range(1, MAX_STATIONS + 1) if active >> (s - 1) & 1})
+
+
+# ----------------------------------------------------------------------------- commands
+
+CMD_CONTINUOUS = b'C\r'
+CMD_SINGLE = b'P'          # no CR: the device acts on the letter; also stops continuous mode
+CMD_FLUSH = b'\r'          # answered with "invalid command"; clears a half-sent command
+CMD_STATION_MAP = bytes([CTRL_U]) + b'0\r'
+CMD_WHOAMI = bytes([CTRL_V]) + b'\r'
+CMD_RESET_COUNTERS = b'Q\r'
+
+
+def cmd_format(binary: bool) -> bytes:
+    return b'F1\r' if binary else b'F0\r'
+
+
+def cmd_units(centimetres: bool) -> bytes:
+    return b'U1\r' if centimetres else b'U0\r'
+
+
+def cmd_output_list(codes: Iterable[int], station: str | int = '*') -> bytes:
+    return f'O{station},{",".join(str(int(c)) for c in codes)}\r'.encode('ascii')
+
+
+def cmd_hemisphere(vector: Sequence[float], station: str | int = '*') -> bytes:
+    return f'H{station},{",".join(f"{float(v):g}" for v in vector)}\r'.encode('ascii')
+
+
+def cmd_frame_rate(hz: int) -> bytes:
+    if hz not in (120, 240):
+        raise ValueError(f'frame rate {hz} Hz: the Liberty offers 120 or 240')
+    return b'R3\r' if hz == 120 else b'R4\r'
+
+
+def link_bytes_per_second(baud: int) -> float:
+    """Payload bytes per second an 8N1 serial line carries (10 bits on the wire per byte)."""
+    return baud / 10.0
+
+
+# ----------------------------------------------------------------------------- parsing
+
+@dataclass
+class ParserStats:
+    """Counters of a stream parser; the driver reports them in its diagnostics."""
+
+    records: int = 0
+    replies: int = 0
+    bytes_in: int = 0
+    bytes_dropped: int = 0
+    resyncs: int = 0
+    bad_lines: int = 0
+    error_records: int = 0
+    reasons: dict = field(default_factory=dict)
+
+    def drop(self, count: int, reason: str) -> None:
+        if count <= 0:
+            return
+        self.bytes_dropped += count
+        self.resyncs += 1
+        self.reasons[reason] = self.reasons.get(reason, 0) + 1
+
+
+class BinaryStreamParser:
+    """Incremental F1 parser: feed it whatever the port returned, get whole records back.
+
+    A candidate record must have the sync bytes, a station in 1..16, a ``C`` or ``P``
+    command byte, the payload size of the configured output list and, when the list ends
+    with item 1, the trailing CR LF. Anything else is dropped one byte at a time until a
+    candidate passes (the sliding-window resync of VRPN and libplhm). Replies to system
+    commands (other command bytes) are only accepted while ``accept_replies`` is set,
+    i.e. during set-up, so garbage cannot swallow good records while streaming.
+    """
+
+    def __init__(self, output_list: OutputList, accept_replies: bool = False,
+                 max_buffer: int = 1 << 16):
+        self.output_list = output_list
+        self.accept_replies = accept_replies
+        self.max_buffer = max_buffer
+        self.stats = ParserStats()
+        self._buffer = bytearray()
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back waiting for the rest of a record."""
+        return len(self._buffer)
+
+    def reset(self) -> None:
+        """Forget a partial record (after a port re-open or a device reset)."""
+        self.stats.drop(len(self._buffer), 'reset')
+        self._buffer.clear()
+
+    def feed(self, data: bytes) -> list[StationRecord | Reply]:
+        self.stats.bytes_in += len(data)
+        buffer = self._buffer
+        buffer.extend(data)
+        out: list[StationRecord | Reply] = []
+        layout = self.output_list
+        payload_struct = layout.payload_struct
+        size = layout.payload_size
+        total = layout.record_size
+        crlf = layout.ends_with_crlf
+        stats = self.stats
+        pos = 0
+        n = len(buffer)
+        while True:
+            start = buffer.find(SYNC_LIBERTY, pos)
+            if start < 0:
+                # Keep a trailing 'L': it may be the first half of the next sync.
+                keep = 1 if n > pos and buffer[n - 1] == 0x4C else 0
+                stats.drop(n - keep - pos, 'no sync')
+                pos = n - keep
+                break
+            if start > pos:
+                stats.drop(start - pos, 'garbage before sync')
+                pos = start
+            if n - pos < HEADER_SIZE:
+                break
+            _, station, command, error, _, payload_size = HEADER.unpack_from(buffer, pos)
+            if command in DATA_COMMANDS:
+                if not 1 <= station <= MAX_STATIONS or payload_size != size:
+                    stats.drop(1, 'bad station' if payload_size == size else 'bad size field')
+                    pos += 1
+                    continue
+                if n - pos < total:
+                    break
+                end = pos + total
+                if crlf and buffer[end - 2:end] != b'\r\n':
+                    stats.drop(1, 'missing CR LF')
+                    pos += 1
+                    continue
+                values = payload_struct.unpack_from(buffer, pos + HEADER_SIZE)
+                if crlf:
+                    values = values[:-1]
+                record = layout.record_from_values(station, chr(command), error, values)
+                if error != NO_ERROR:
+                    stats.error_records += 1
+                out.append(record)
+                stats.records += 1
+                pos = end
+                continue
+            if self.accept_replies and station <= MAX_STATIONS and \
+                    payload_size <= MAX_REPLY_PAYLOAD and command >= 0x01:
+                if n - pos < HEADER_SIZE + payload_size:
+                    break
+                payload = bytes(buffer[pos + HEADER_SIZE:pos + HEADER_SIZE + payload_size])
+                out.append(Reply(command=command, station=station, payload=payload))
+                stats.replies += 1
+                pos += HEADER_SIZE + payload_size
+                continue
+            stats.drop(1, 'bad command byte')
+            pos += 1
+        del buffer[:pos]
+        if len(buffer) > self.max_buffer:  # cannot happen with a sane size check; be safe
+            stats.drop(len(buffer), 'overflow')
+            buffer.clear()
+        return out
+
+
+_NUMBER = re.compile(rb'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?')
+
+
+class AsciiStreamParser:
+    """Incremental F0 parser: splits CR LF lines and decodes each as one station record.
+
+    Fields are cut at their fixed widths when the line has the expected length; otherwise
+    numbers are split by sign and spacing (negative numbers may run into the previous
+    field). A line that yields the wrong count of numbers or an impossible station is
+    dropped and counted. Lines whose station field is 0 are replies to system commands.
+    """
+
+    def __init__(self, output_list: OutputList, accept_replies: bool = False,
+                 max_line: int = 1024):
+        self.output_list = output_list
+        self.accept_replies = accept_replies
+        self.max_line = max_line
+        self.stats = ParserStats()
+        self._buffer = bytearray()
+        int_fields = {'timestamp_ms', 'frame_count', 'stylus', 'distortion', 'external_sync'}
+        self._is_int = [item.field in int_fields
+                        for item in output_list.value_items for _ in range(item.count)]
+        self._slices = []
+        offset = 4
+        for item in output_list.items:
+            if item.code == 0:
+                offset += 1
+            elif item.field:
+                width = int(re.match(r'%(\d+)', item.ascii_format).group(1))
+                for _ in range(item.count):
+                    self._slices.append((offset, offset + width))
+                    offset += width
+        self._line_length = offset
+
+    @property
+    def pending(self) -> int:
+        return len(self._buffer)
+
+    def reset(self) -> None:
+        self.stats.drop(len(self._buffer), 'reset')
+        self._buffer.clear()
+
+    def feed(self, data: bytes) -> list[StationRecord | Reply]:
+        self.stats.bytes_in += len(data)
+        self._buffer.extend(data)
+        out: list[StationRecord | Reply] = []
+        while True:
+            end = self._buffer.find(b'\n')
+            if end < 0:
+                if len(self._buffer) > self.max_line:
+                    self.stats.drop(len(self._buffer), 'line too long')
+                    self._buffer.clear()
+                break
+            line = bytes(self._buffer[:end])
+            del self._buffer[:end + 1]
+            if line.endswith(b'\r'):
+                line = line[:-1]
+            if not line.strip():
+                continue
+            parsed = self._parse_line(line)
+            if parsed is None:
+                self.stats.drop(len(line) + 1, 'bad line')
+                self.stats.bad_lines += 1
+            else:
+                out.append(parsed)
+        return out
+
+    def _parse_line(self, line: bytes) -> StationRecord | Reply | None:
+        if len(line) < 4 or not line[:2].strip().isdigit():
+            return None
+        station = int(line[:2])
+        if station == 0:
+            if not self.accept_replies:
+                return None
+            self.stats.replies += 1
+            return Reply(command=line[2], station=0, payload=line[2:])
+        if station > MAX_STATIONS:
+            return None
+        command = chr(line[2])
+        error = line[3]
+        if command not in 'CP':
+            return None
+        if len(line) == self._line_length:
+            tokens = [line[a:b] for a, b in self._slices]
+        else:
+            tokens = _NUMBER.findall(line, 4)
+        if len(tokens) != self.output_list.value_count:
+            return None
+        values: list = []
+        try:
+            for token, is_int in zip(tokens, self._is_int):
+                values.append(int(token) if is_int else float(token))
+        except ValueError:
+            return None
+        self.stats.records += 1
+        if error != NO_ERROR:
+            self.stats.error_records += 1
+        return self.output_list.record_from_values(station, command, error, values)
+
+
+def make_stream_parser(output_list: OutputList, binary: bool, accept_replies: bool = False):
+    """The parser for the device's current output format."""
+    cls = BinaryStreamParser if binary else AsciiStreamParser
+    return cls(output_list, accept_replies=accept_replies)
