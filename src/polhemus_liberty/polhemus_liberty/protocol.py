@@ -62,6 +62,13 @@ class OutputItem:
         return struct.calcsize('<' + self.fmt)
 
     @property
+    def ascii_width(self) -> int:
+        """Characters of one value in ASCII mode (padding items take one, CR LF none)."""
+        if self.ascii_format is None:
+            return 1 if self.code == 0 else 0
+        return int(re.match(r'%(\d+)', self.ascii_format).group(1))
+
+    @property
     def count(self) -> int:
         """Number of values this item carries (0 for padding and CR LF)."""
         if self.field is None:
@@ -142,6 +149,8 @@ class OutputList:
         self.ends_with_crlf = codes[-1] == 1
         self.value_items = tuple(i for i in self.items if i.field)
         self.value_count = sum(i.count for i in self.value_items)
+        # 4 header characters (station, command, error), the fields, CR LF.
+        self.ascii_line_size = 4 + sum(i.ascii_width * max(i.count, 1) for i in self.items) + 2
 
     def __repr__(self) -> str:
         return f'OutputList({list(self.codes)})'
@@ -419,13 +428,10 @@ class AsciiStreamParser:
         self._slices = []
         offset = 4
         for item in output_list.items:
-            if item.code == 0:
-                offset += 1
-            elif item.field:
-                width = int(re.match(r'%(\d+)', item.ascii_format).group(1))
-                for _ in range(item.count):
-                    self._slices.append((offset, offset + width))
-                    offset += width
+            for _ in range(item.count if item.field else 1):
+                if item.field:
+                    self._slices.append((offset, offset + item.ascii_width))
+                offset += item.ascii_width
         self._line_length = offset
 
     @property
