@@ -1,0 +1,241 @@
+"""ParamSpec / validate / load_yaml_parameters (no ROS needed)."""
+
+import math
+
+import pytest
+
+from inhand_common.parameters import (ParameterError, ParamSpec, load_yaml_parameters,
+                                      validate)
+
+SPECS = [
+    ParamSpec('port', '/dev/ttyUSB0', 'serial device'),
+    ParamSpec('baud', 115200, 'serial speed', choices=(9600, 19200, 38400, 57600, 115200)),
+    ParamSpec('rate_hz', 240, 'frame rate', choices=(120, 240)),
+    ParamSpec('stations', 4, 'number of sensors', minimum=1, maximum=16),
+    ParamSpec('latency_s', 0.004, 'stamp correction', minimum=0.0, maximum=0.1),
+    ParamSpec('units', 'cm', 'device units', choices=('cm', 'inch')),
+    ParamSpec('binary', True, 'F1 output'),
+    ParamSpec('hemisphere', [1.0, 0.0, 0.0], 'H* vector', minimum=-1.0, maximum=1.0, length=3),
+    ParamSpec('items', [8, 9, 2, 7, 1], 'output list', minimum=0, maximum=12, min_length=1),
+]
+
+
+def refused(values, specs=SPECS):
+    with pytest.raises(ParameterError) as info:
+        validate(specs, values)
+    return info.value
+
+
+def test_defaults_pass_and_come_back():
+    result = validate(SPECS, {})
+    assert result == {s.name: (list(s.default) if s.is_list else s.default) for s in SPECS}
+    assert isinstance(result['hemisphere'], list)
+
+
+def test_given_values_override_defaults():
+    result = validate(SPECS, {'stations': 8, 'units': 'inch', 'binary': False})
+    assert result['stations'] == 8
+    assert result['units'] == 'inch'
+    assert result['binary'] is False
+    assert result['rate_hz'] == 240
+
+
+def test_out_of_range_message_names_parameter_value_and_range():
+    error = refused({'stations': 17})
+    assert len(error.problems) == 1
+    message = error.problems[0]
+    assert "'stations'" in message
+    assert '17' in message
+    assert '[1, 16]' in message
+    assert 'stations' in str(error) and '17' in str(error)
+
+
+def test_range_in_message_is_not_rounded():
+    # A bound with more than six significant digits must appear as it is, or the message
+    # names a range that is not the one enforced.
+    spec = ParamSpec('buffer_bytes', 4096, 'read buffer', minimum=1, maximum=1048576)
+    with pytest.raises(ParameterError) as info:
+        validate([spec], {'buffer_bytes': 1048577})
+    message = info.value.problems[0]
+    assert '1048577' in message
+    assert '[1, 1048576]' in message
+
+
+def test_float_out_of_range_message():
+    error = refused({'latency_s': 0.5})
+    message = error.problems[0]
+    assert "'latency_s'" in message and '0.5' in message and '[0, 0.1]' in message
+
+
+@pytest.mark.parametrize('value', [0, -3, 17, 1000])
+def test_int_bounds_are_inclusive_and_enforced(value):
+    refused({'stations': value})
+
+
+@pytest.mark.parametrize('value', [1, 16])
+def test_int_bounds_inclusive(value):
+    assert validate(SPECS, {'stations': value})['stations'] == value
+
+
+@pytest.mark.parametrize('name, value', [
+    ('stations', True),        # bool is not an int here
+    ('stations', False),
+    ('stations', 4.0),         # float for int
+    ('stations', '4'),
+    ('latency_s', '0.01'),     # string for float
+    ('latency_s', True),
+    ('latency_s', None),
+    ('binary', 1),             # int for bool
+    ('binary', 'true'),
+    ('port', 0),
+    ('units', 1),
+])
+def test_wrong_types_are_refused(name, value):
+    error = refused({name: value})
+    assert len(error.problems) == 1
+    assert f"'{name}'" in error.problems[0]
+    assert repr(value) in error.problems[0]
+
+
+def test_int_accepted_for_float_and_coerced():
+    result = validate(SPECS, {'latency_s': 0})
+    assert result['latency_s'] == 0.0
+    assert type(result['latency_s']) is float
+    result = validate(SPECS, {'hemisphere': [0, 0, -1]})
+    assert result['hemisphere'] == [0.0, 0.0, -1.0]
+    assert all(type(v) is float for v in result['hemisphere'])
+
+
+@pytest.mark.parametrize('value', [math.nan, math.inf, -math.inf])
+def test_non_finite_float_refused(value):
+    error = refused({'latency_s': value})
+    assert "'latency_s'" in error.problems[0]
+
+
+def test_nan_refused_even_without_bounds():
+    spec = ParamSpec('gain', 1.0, 'unbounded')
+    with pytest.raises(ParameterError):
+        validate([spec], {'gain': math.nan})
+    assert validate([spec], {'gain': -1e300}) == {'gain': -1e300}
+
+
+@pytest.mark.parametrize('value', [
+    [1.0, 0.0],                # too short
+    [1.0, 0.0, 0.0, 0.0],      # too long
+    [2.0, 0.0, 0.0],           # element out of range
+    [0.0, math.nan, 0.0],      # element not finite
+    [0.0, '0', 0.0],           # element of the wrong type
+    [0.0, True, 0.0],
+    1.0,                       # not a list
+    'x',
+])
+def test_bad_lists_refused(value):
+    error = refused({'hemisphere': value})
+    assert "'hemisphere'" in error.problems[0]
+    assert 'exactly 3' in error.problems[0]
+
+
+def test_list_min_length_and_element_range():
+    assert validate(SPECS, {'items': [2, 4, 1]})['items'] == [2, 4, 1]
+    assert validate(SPECS, {'items': (2, 7)})['items'] == [2, 7]
+    refused({'items': []})
+    refused({'items': [2, 13]})
+    refused({'items': [2, -1]})
+    refused({'items': [2.0, 4.0]})
+
+
+def test_choices():
+    assert validate(SPECS, {'rate_hz': 120})['rate_hz'] == 120
+    error = refused({'rate_hz': 60})
+    assert "'rate_hz'" in error.problems[0] and '60' in error.problems[0]
+    assert '120' in error.problems[0] and '240' in error.problems[0]
+    error = refused({'units': 'mm'})
+    assert "'mm'" in error.problems[0] and "'cm'" in error.problems[0]
+
+
+def test_unknown_names_reported():
+    error = refused({'stationz': 4})
+    assert len(error.problems) == 1
+    assert "'stationz'" in error.problems[0]
+    assert 'stations' in error.problems[0]  # the known names are listed
+
+
+def test_several_problems_reported_together():
+    error = refused({'stations': 0, 'latency_s': 'fast', 'bogus': 1, 'units': 'mm',
+                     'hemisphere': [1.0]})
+    assert len(error.problems) == 5
+    text = str(error)
+    for name in ('stations', 'latency_s', 'bogus', 'units', 'hemisphere'):
+        assert name in text
+
+
+def test_allowed_phrases():
+    assert SPECS[3].allowed() == 'an integer in [1, 16]'
+    assert ParamSpec('a', 1.0, '', minimum=0.0).allowed() == 'a number >= 0'
+    assert ParamSpec('a', 1, '', maximum=5).allowed() == 'an integer <= 5'
+    assert ParamSpec('a', 'x', '').allowed() == 'a string'
+    assert ParamSpec('a', False, '').allowed() == 'true or false'
+    assert SPECS[7].allowed() == 'a list of exactly 3 elements, each a number in [-1, 1]'
+
+
+def test_empty_list_default_is_a_spec_error():
+    spec = ParamSpec('empty', [], 'no element type')
+    with pytest.raises(TypeError):
+        spec.allowed()
+
+
+# ----------------------------------------------------------------------------- YAML
+
+def test_load_yaml_node_section(tmp_path):
+    path = tmp_path / 'liberty.yaml'
+    path.write_text(
+        'liberty_driver:\n'
+        '  ros__parameters:\n'
+        '    port: /dev/ttyUSB1\n'
+        '    stations: 2\n'
+        '    hemisphere: [0.0, 0.0, 1.0]\n'
+        'other_node:\n'
+        '  ros__parameters:\n'
+        '    stations: 9\n', encoding='utf-8')
+    values = load_yaml_parameters(str(path), 'liberty_driver')
+    assert values == {'port': '/dev/ttyUSB1', 'stations': 2, 'hemisphere': [0.0, 0.0, 1.0]}
+    result = validate(SPECS, values)
+    assert result['stations'] == 2 and result['port'] == '/dev/ttyUSB1'
+    assert load_yaml_parameters(str(path), 'other_node') == {'stations': 9}
+    assert load_yaml_parameters(str(path), 'absent') == {}
+
+
+def test_load_yaml_wildcard_then_node_overrides(tmp_path):
+    path = tmp_path / 'params.yaml'
+    path.write_text(
+        '/**:\n'
+        '  ros__parameters:\n'
+        '    units: inch\n'
+        '    stations: 3\n'
+        '/liberty_driver:\n'
+        '  ros__parameters:\n'
+        '    stations: 5\n', encoding='utf-8')
+    assert load_yaml_parameters(str(path), 'liberty_driver') == {'units': 'inch', 'stations': 5}
+    assert load_yaml_parameters(str(path), 'someone_else') == {'units': 'inch', 'stations': 3}
+
+
+def test_load_yaml_empty_and_bad_files(tmp_path):
+    empty = tmp_path / 'empty.yaml'
+    empty.write_text('', encoding='utf-8')
+    assert load_yaml_parameters(str(empty), 'n') == {}
+    not_mapping = tmp_path / 'list.yaml'
+    not_mapping.write_text('- 1\n- 2\n', encoding='utf-8')
+    with pytest.raises(ParameterError):
+        load_yaml_parameters(str(not_mapping), 'n')
+
+
+def test_yaml_values_are_validated_with_all_problems(tmp_path):
+    path = tmp_path / 'bad.yaml'
+    path.write_text(
+        'liberty_driver:\n'
+        '  ros__parameters:\n'
+        '    stations: 40\n'
+        '    rate_hz: 60\n'
+        '    typo_name: 1\n', encoding='utf-8')
+    error = refused(load_yaml_parameters(str(path), 'liberty_driver'))
+    assert len(error.problems) == 3
