@@ -5,6 +5,11 @@ import pathlib
 
 import pytest
 
+# Tests that use DDS stay on this machine and in a domain of their own, so parallel runs
+# (or a developer's live graph) never hear each other. Set before rclpy is imported.
+os.environ.setdefault('ROS_DOMAIN_ID', str(100 + os.getpid() % 100))
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
 WORKSPACE = pathlib.Path(__file__).resolve().parents[1]
 SHARED = WORKSPACE.parent / 'shared'
 

@@ -88,6 +88,7 @@ class LibertyDriver:
         self._port: serial.Serial | None = None
         self._last_report = (time.monotonic(), 0, 0)
         self._warned_missing = False
+        self._last_receipt = float('-inf')
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> 'LibertyDriver':
@@ -248,11 +249,29 @@ class LibertyDriver:
                 continue
             last_data = now
             receipt = self.clock()
+            frames = []
             for record in self._parser.feed(chunk):
-                if isinstance(record, Reply):
-                    continue
-                for frame in self.assembler.add(record, receipt):
-                    self._emit(frame)
+                if not isinstance(record, Reply):
+                    frames.extend(self.assembler.add(record, receipt))
+            self._backdate(frames, receipt)
+            for frame in frames:
+                self._emit(frame)
+
+    def _backdate(self, frames: list[Frame], receipt: float) -> None:
+        """Give frames that arrived together in one read their own, earlier stamps.
+
+        USB and the OS deliver the stream in bursts; the device sent those frames one
+        period apart, so the k-th last frame of a burst is stamped k periods before
+        receipt. Stamps also never go backwards, so every frame has a stamp of its own.
+        """
+        period = 1.0 / self.config.frame_rate
+        count = len(frames)
+        for index, frame in enumerate(frames):
+            if frame.receipt_time == receipt:
+                frame.receipt_time = receipt - (count - 1 - index) * period
+            if frame.receipt_time <= self._last_receipt:
+                frame.receipt_time = self._last_receipt + 1e-6
+            self._last_receipt = frame.receipt_time
 
     def _finish_frame(self) -> None:
         frame = self.assembler.flush()

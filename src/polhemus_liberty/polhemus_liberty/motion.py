@@ -81,6 +81,7 @@ class RecordedMotion:
     positions: np.ndarray
     quaternions: np.ndarray
     loop: bool = True
+    malformed_lines: int = 0
 
     def __post_init__(self) -> None:
         if len(self.times) == 0:
@@ -120,16 +121,25 @@ def load_plhm_text(path: str | Path, loop: bool = True) -> RecordedMotion:
 
     Positions in centimetres, Euler angles in degrees (Z-Y-X), time in milliseconds: the
     format of the real recordings in ``shared/data/liberty_recordings``. Lines with the
-    same time form one frame. Malformed lines are skipped and reported in the error when
-    nothing usable is left.
+    same time form one frame. Malformed lines (a recording cut off mid-line) are skipped and
+    counted in ``malformed_lines``.
     """
-    raw = np.genfromtxt(path, delimiter=',', dtype=float, invalid_raise=False)
-    raw = np.atleast_2d(raw)
-    if raw.size == 0 or raw.shape[1] < 8:
-        raise ValueError(f'{path}: expected lines "station, x, y, z, az, el, roll, time"')
-    raw = raw[np.all(np.isfinite(raw[:, :8]), axis=1)]
-    if len(raw) == 0:
-        raise ValueError(f'{path}: no well-formed pose lines')
+    rows, malformed = [], 0
+    with open(path, encoding='utf-8', errors='replace') as stream:
+        for line in stream:
+            fields = line.split(',')
+            try:
+                row = [float(f) for f in fields[:8]]
+            except ValueError:
+                row = []
+            if len(row) == 8 and all(math.isfinite(v) for v in row):
+                rows.append(row)
+            elif line.strip():
+                malformed += 1  # e.g. a recording cut off mid-line
+    if not rows:
+        raise ValueError(f'{path}: no lines of the form "station, x, y, z, az, el, roll, '
+                         f'time" ({malformed} malformed)')
+    raw = np.asarray(rows)
     stations = tuple(sorted({int(s) for s in raw[:, 0]}))
     quaternions = euler_zyx_to_quaternion(*np.radians(raw[:, 4:7]).T)
     frames: list[dict[int, Pose]] = []
@@ -142,7 +152,7 @@ def load_plhm_text(path: str | Path, loop: bool = True) -> RecordedMotion:
         frames[-1][int(row[0])] = (row[1:4] * 0.01, q)
     positions, quats = _forward_fill(frames, stations)
     times_arr = np.asarray(times) - times[0]
-    return RecordedMotion(stations, times_arr, positions, quats, loop)
+    return RecordedMotion(stations, times_arr, positions, quats, loop, malformed)
 
 
 def load_pose_bag(path: str | Path, station_by_name: Mapping[str, int],
