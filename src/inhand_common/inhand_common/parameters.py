@@ -28,7 +28,10 @@ class ParameterError(ValueError):
         super().__init__('invalid parameters:\n' + '\n'.join(f'  - {p}' for p in self.problems))
 
 
-_SCALAR_TYPES = (bool, int, float, str)
+def _number(value: float) -> str:
+    """A bound as written, never rounded (1048576, not 1.04858e+06)."""
+    return repr(value) if isinstance(value, float) and value != int(value) else \
+        str(int(value))
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,10 @@ class ParamSpec:
     min_length: int | None = None
     read_only: bool = True
 
+    def __post_init__(self) -> None:
+        if self.is_list and not self.default:
+            raise TypeError(f'{self.name}: a list default must not be empty (it fixes the type)')
+
     @property
     def is_list(self) -> bool:
         return isinstance(self.default, (list, tuple))
@@ -58,8 +65,6 @@ class ParamSpec:
     def element_type(self) -> type:
         """The Python type of the value (of each element for lists)."""
         if self.is_list:
-            if not self.default:
-                raise TypeError(f'{self.name}: a list default must not be empty (it fixes the type)')
             return type(self.default[0])
         return type(self.default)
 
@@ -70,11 +75,11 @@ class ParamSpec:
         if self.choices is not None:
             what = 'one of ' + ', '.join(repr(c) for c in self.choices)
         elif self.minimum is not None and self.maximum is not None:
-            what = f'{kind} in [{self.minimum:g}, {self.maximum:g}]'
+            what = f'{kind} in [{_number(self.minimum)}, {_number(self.maximum)}]'
         elif self.minimum is not None:
-            what = f'{kind} >= {self.minimum:g}'
+            what = f'{kind} >= {_number(self.minimum)}'
         elif self.maximum is not None:
-            what = f'{kind} <= {self.maximum:g}'
+            what = f'{kind} <= {_number(self.maximum)}'
         else:
             what = kind
         if not self.is_list:

@@ -46,9 +46,11 @@ MAX_REPLY_PAYLOAD = 1024
 class OutputItem:
     """One entry of the Liberty output list (``O*,...``).
 
-    ``fmt`` is the binary struct code (little-endian, no prefix), ``field`` the
-    :class:`StationRecord` attribute it fills, ``ascii_format`` the printf format of one
-    value in ASCII mode (its width is the field width).
+    ``fmt`` is the binary struct code used to decode (little-endian, no prefix; padding
+    and CR LF are skipped there, the CR LF is checked separately), ``encode_fmt`` the one
+    used to encode when it differs, ``field`` the :class:`StationRecord` attribute it
+    fills, ``ascii_format`` the printf format of one value in ASCII mode (its width is the
+    field width).
     """
 
     code: int
@@ -56,6 +58,7 @@ class OutputItem:
     fmt: str
     field: str | None
     ascii_format: str | None
+    encode_fmt: str | None = None
 
     @property
     def size(self) -> int:
@@ -77,8 +80,8 @@ class OutputItem:
 
 
 ITEMS: dict[int, OutputItem] = {item.code: item for item in (
-    OutputItem(0, 'space', 'x', None, None),
-    OutputItem(1, 'crlf', '2s', None, None),
+    OutputItem(0, 'space', 'x', None, None, encode_fmt='c'),
+    OutputItem(1, 'crlf', '2x', None, None, encode_fmt='2s'),
     OutputItem(2, 'position', '3f', 'position', '%9.4f'),
     OutputItem(3, 'position_ext', '3f', 'position', '%13.6e'),
     OutputItem(4, 'euler', '3f', 'euler_deg', '%9.4f'),
@@ -139,11 +142,13 @@ class OutputList:
         fields = [ITEMS[c].field for c in codes if ITEMS[c].field]
         if len(fields) != len(set(fields)):
             raise ValueError(f'output list {list(codes)} carries the same quantity twice')
-        if 1 in codes and codes[-1] != 1:
-            raise ValueError(f'output list {list(codes)}: CR LF (item 1) must come last')
+        if 1 in codes and (codes[-1] != 1 or codes.count(1) > 1):
+            raise ValueError(f'output list {list(codes)}: CR LF (item 1) may only come last')
         self.codes = codes
         self.items = tuple(ITEMS[c] for c in codes)
         self.payload_struct = struct.Struct('<' + ''.join(i.fmt for i in self.items))
+        self.encode_struct = struct.Struct('<' + ''.join(i.encode_fmt or i.fmt
+                                                         for i in self.items))
         self.payload_size = self.payload_struct.size
         self.record_size = HEADER_SIZE + self.payload_size
         self.ends_with_crlf = codes[-1] == 1
@@ -209,15 +214,15 @@ def encode_binary_record(output_list: OutputList, record: StationRecord) -> byte
     index = 0
     for item in output_list.items:
         if item.code == 0:
-            continue  # 'x' pad byte takes no argument
-        if item.code == 1:
+            packed.append(b' ')
+        elif item.code == 1:
             packed.append(b'\r\n')
-            continue
-        packed.extend(flat[index:index + item.count])
-        index += item.count
+        else:
+            packed.extend(flat[index:index + item.count])
+            index += item.count
     header = HEADER.pack(SYNC_LIBERTY, record.station, ord(record.command), record.error, 0,
                          output_list.payload_size)
-    return header + output_list.payload_struct.pack(*packed)
+    return header + output_list.encode_struct.pack(*packed)
 
 
 def encode_binary_reply(command: int, payload: bytes, station: int = 0) -> bytes:
@@ -376,8 +381,6 @@ class BinaryStreamParser:
                     pos += 1
                     continue
                 values = payload_struct.unpack_from(buffer, pos + HEADER_SIZE)
-                if crlf:
-                    values = values[:-1]
                 record = layout.record_from_values(station, chr(command), error, values)
                 if error != NO_ERROR:
                     stats.error_records += 1
@@ -404,6 +407,7 @@ class BinaryStreamParser:
 
 
 _NUMBER = re.compile(rb'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?')
+_BODY = re.compile(rb'[-+.0-9eE ]*')
 
 
 class AsciiStreamParser:
@@ -453,15 +457,16 @@ class AsciiStreamParser:
                     self.stats.drop(len(self._buffer), 'line too long')
                     self._buffer.clear()
                 break
+            raw_length = end + 1
             line = bytes(self._buffer[:end])
-            del self._buffer[:end + 1]
+            del self._buffer[:raw_length]
             if line.endswith(b'\r'):
                 line = line[:-1]
             if not line.strip():
                 continue
             parsed = self._parse_line(line)
             if parsed is None:
-                self.stats.drop(len(line) + 1, 'bad line')
+                self.stats.drop(raw_length, 'bad line')
                 self.stats.bad_lines += 1
             else:
                 out.append(parsed)
@@ -480,7 +485,9 @@ class AsciiStreamParser:
             return None
         command = chr(line[2])
         error = line[3]
-        if command not in 'CP':
+        # The error field is a printable character and the body holds only numbers: a
+        # line with anything else was corrupted on the way and is not guessed at.
+        if command not in 'CP' or not 0x20 <= error < 0x7F or not _BODY.fullmatch(line, 4):
             return None
         if len(line) == self._line_length:
             tokens = [line[a:b] for a, b in self._slices]
