@@ -23,13 +23,24 @@ WORKSPACE = pathlib.Path(__file__).resolve().parents[1]
 VENV_BIN = WORKSPACE / '.venv' / 'bin'
 
 
+def executable_path(name: str) -> str:
+    """The workspace executable: in .venv/bin (embedded ROS), else where colcon installed it
+    (``<prefix>/lib/<package>/<name>`` on a full ROS 2 install, found via AMENT_PREFIX_PATH)."""
+    candidate = VENV_BIN / name
+    if candidate.exists():
+        return str(candidate)
+    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+        for path in pathlib.Path(prefix or '.').glob(f'lib/*/{name}'):
+            return str(path)
+    raise FileNotFoundError(f'{name}: not in {VENV_BIN} nor under AMENT_PREFIX_PATH')
+
+
 class Process:
     """A workspace executable in the background, its output kept in a file."""
 
     def __init__(self, args: list[str]):
         self.log = tempfile.NamedTemporaryFile('w+', prefix='proc-', suffix='.log', delete=False)
-        executable = VENV_BIN / args[0]
-        self.popen = subprocess.Popen([str(executable), *args[1:]], stdout=self.log,
+        self.popen = subprocess.Popen([executable_path(args[0]), *args[1:]], stdout=self.log,
                                       stderr=subprocess.STDOUT, env=dict(os.environ),
                                       start_new_session=True)
 
