@@ -1,26 +1,30 @@
 """Start, spin and stop a node the same way in every executable.
 
-Jazzy has no ``with rclpy.init()``: the pattern is try / spin / except (KeyboardInterrupt,
-ExternalShutdownException) / finally destroy and ``try_shutdown``. Nodes that hold
-hardware or threads define ``close()``, called before the node is destroyed, so Ctrl-C
-(SIGINT) or SIGTERM always stops the device cleanly. A refused parameter ends the process
-with exit code 2 and the list of problems on stderr.
+Ctrl-C (SIGINT) and SIGTERM end the spin loop through our own handlers rather than
+rclpy's, so that the node's ``close()`` runs while its context is still valid: nodes that
+hold hardware or threads stop the device cleanly and can still log and publish a last
+word. A refused parameter ends the process with exit code 2 and the list of problems on
+stderr. (Jazzy has no ``with rclpy.init()``; this is the try / spin / finally pattern.)
 """
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 from typing import Callable, Sequence
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from inhand_common.parameters import ParameterError
 
 __all__ = ['run_node', 'EXIT_BAD_PARAMETERS']
 
 EXIT_BAD_PARAMETERS = 2
+SPIN_SLICE = 0.1  # s: how often the spin loop looks at the stop flag
 
 
 def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | None = None,
@@ -29,13 +33,18 @@ def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | Non
 
     ``name`` prefixes the message printed when parameters are refused.
     """
-    rclpy.init(args=list(args) if args is not None else sys.argv)
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set())
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    rclpy.init(args=list(args) if args is not None else sys.argv,
+               signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         node = make_node()
         executor = executor_factory()
         executor.add_node(node)
-        executor.spin()
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=SPIN_SLICE)
         return 0
     except ParameterError as error:
         print(f'{name}: {error}', file=sys.stderr)
@@ -49,3 +58,5 @@ def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | Non
                 close()
             node.destroy_node()
         rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -19,6 +19,7 @@ against the emulator on a pty.
 from __future__ import annotations
 
 import logging
+import termios
 import threading
 import time
 from dataclasses import dataclass, field
@@ -37,6 +38,10 @@ from polhemus_liberty.protocol import (CMD_CONTINUOUS, CMD_FLUSH, CMD_SINGLE, CM
                                        link_bytes_per_second, make_stream_parser)
 
 __all__ = ['LibertyDriver', 'PoseFrame', 'DriverStatus']
+
+# What a vanished or broken port raises: pyserial's own errors, OS errors, and termios
+# errors from flushes on a pty whose other end is gone.
+PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 
 READ_TIMEOUT = 0.02       # s: how long one read waits; bounds stop and silence latency
 SETTLE_AFTER_LIST = 0.1   # s: readers wait this long after setting the output list
@@ -110,7 +115,7 @@ class LibertyDriver:
                 try:
                     self._configure()
                     self._stream()
-                except (serial.SerialException, OSError) as error:
+                except PORT_ERRORS as error:
                     self._lost(error)
         finally:
             self._close(stop_device=True)
@@ -121,7 +126,7 @@ class LibertyDriver:
         try:
             self._port = serial.Serial(self.config.port, self.config.baud, timeout=READ_TIMEOUT,
                                        write_timeout=1.0)
-        except (serial.SerialException, OSError) as error:
+        except PORT_ERRORS as error:
             if not self._warned_missing:
                 self.log.warning(f'cannot open {self.config.port} ({error}); retrying every '
                                  f'{self.config.reconnect_period:g} s')
@@ -150,12 +155,12 @@ class LibertyDriver:
                 port.flush()
                 time.sleep(0.05)
                 port.reset_input_buffer()
-        except (serial.SerialException, OSError):
+        except PORT_ERRORS:
             pass
         finally:
             try:
                 port.close()
-            except (serial.SerialException, OSError):
+            except PORT_ERRORS:
                 pass
 
     def _send(self, command: bytes) -> None:

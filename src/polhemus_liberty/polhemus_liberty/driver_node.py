@@ -61,6 +61,12 @@ class LibertyDriverNode(Node):
     def close(self) -> None:
         """Stop continuous output and close the port (called on Ctrl-C / SIGTERM)."""
         self.driver.stop()
+        c = self.driver.counters()
+        self.get_logger().info(
+            f"stopped: {c['published_frames']} frames published, {c['dropped_frames']} "
+            f"dropped, {c['incomplete_frames']} incomplete, {c['resyncs']} resyncs "
+            f"({c['bytes_dropped']} bytes skipped), {c['resets']} resets, "
+            f"{c['reconnects']} reconnects")
 
 
 def main(args=None) -> int:
