@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
+# the workspace root; the remaining arguments go to the benchmark script.
+#
+# Usage: bash launch_scripts/benchmark.sh [liberty|all] [benchmark options]
+#   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
+#                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
+#   all                every benchmark in turn, each with the same options
+# Examples:
+#   bash launch_scripts/benchmark.sh --seconds 20
+#   bash launch_scripts/benchmark.sh liberty --quick
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+
+# name -> script under test/benchmarks/; add further benchmarks here.
+declare -A BENCHMARKS=(
+  [liberty]=bench_liberty.py
+)
+ORDER=(liberty)
+
+WHICH=liberty
+if [[ $# -gt 0 && "$1" != -* ]]; then
+  WHICH="$1"
+  shift
+fi
+if [[ "$WHICH" == all ]]; then
+  SELECTED=("${ORDER[@]}")
+elif [[ -n "${BENCHMARKS[$WHICH]:-}" ]]; then
+  SELECTED=("$WHICH")
+else
+  echo "benchmark.sh: unknown benchmark '$WHICH'; choose one of: ${ORDER[*]} all" >&2
+  exit 2
+fi
+
+bash "$ROOT/launch_scripts/bootstrap.sh"
+cd "$ROOT"
+status=0
+for name in "${SELECTED[@]}"; do
+  echo "### benchmark: $name ($(date -u +%Y-%m-%dT%H:%M:%SZ), $(nproc) cores)"
+  "$ROOT/.venv/bin/python" "test/benchmarks/${BENCHMARKS[$name]}" "$@" || status=$?
+done
+exit "$status"
