@@ -312,7 +312,27 @@ class ParserStats:
         self.reasons[reason] = self.reasons.get(reason, 0) + 1
 
 
-class BinaryStreamParser:
+class _StreamParser:
+    """What both stream parsers share: the held-back bytes and the counters."""
+
+    def __init__(self, output_list: OutputList, accept_replies: bool):
+        self.output_list = output_list
+        self.accept_replies = accept_replies
+        self.stats = ParserStats()
+        self._buffer = bytearray()
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back waiting for the rest of a record or line."""
+        return len(self._buffer)
+
+    def reset(self) -> None:
+        """Forget a partial record (after a port re-open or a device reset)."""
+        self.stats.drop(len(self._buffer), 'reset')
+        self._buffer.clear()
+
+
+class BinaryStreamParser(_StreamParser):
     """Incremental F1 parser: feed it whatever the port returned, get whole records back.
 
     A candidate record must have the sync bytes, a station in 1..16, a ``C`` or ``P``
@@ -325,21 +345,8 @@ class BinaryStreamParser:
 
     def __init__(self, output_list: OutputList, accept_replies: bool = False,
                  max_buffer: int = 1 << 16):
-        self.output_list = output_list
-        self.accept_replies = accept_replies
+        super().__init__(output_list, accept_replies)
         self.max_buffer = max_buffer
-        self.stats = ParserStats()
-        self._buffer = bytearray()
-
-    @property
-    def pending(self) -> int:
-        """Bytes held back waiting for the rest of a record."""
-        return len(self._buffer)
-
-    def reset(self) -> None:
-        """Forget a partial record (after a port re-open or a device reset)."""
-        self.stats.drop(len(self._buffer), 'reset')
-        self._buffer.clear()
 
     def feed(self, data: bytes) -> list[StationRecord | Reply]:
         self.stats.bytes_in += len(data)
@@ -410,7 +417,7 @@ _NUMBER = re.compile(rb'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?')
 _BODY = re.compile(rb'[-+.0-9eE ]*')
 
 
-class AsciiStreamParser:
+class AsciiStreamParser(_StreamParser):
     """Incremental F0 parser: splits CR LF lines and decodes each as one station record.
 
     Fields are cut at their fixed widths when the line has the expected length; otherwise
@@ -421,11 +428,8 @@ class AsciiStreamParser:
 
     def __init__(self, output_list: OutputList, accept_replies: bool = False,
                  max_line: int = 1024):
-        self.output_list = output_list
-        self.accept_replies = accept_replies
+        super().__init__(output_list, accept_replies)
         self.max_line = max_line
-        self.stats = ParserStats()
-        self._buffer = bytearray()
         int_fields = {'timestamp_ms', 'frame_count', 'stylus', 'distortion', 'external_sync'}
         self._is_int = [item.field in int_fields
                         for item in output_list.value_items for _ in range(item.count)]
@@ -437,14 +441,6 @@ class AsciiStreamParser:
                     self._slices.append((offset, offset + item.ascii_width))
                 offset += item.ascii_width
         self._line_length = offset
-
-    @property
-    def pending(self) -> int:
-        return len(self._buffer)
-
-    def reset(self) -> None:
-        self.stats.drop(len(self._buffer), 'reset')
-        self._buffer.clear()
 
     def feed(self, data: bytes) -> list[StationRecord | Reply]:
         self.stats.bytes_in += len(data)

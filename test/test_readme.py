@@ -1,0 +1,27 @@
+"""The README stays true to the code: its commands exist and its tables match the specs."""
+
+import re
+
+from conftest import WORKSPACE
+from polhemus_liberty.driver_config import DRIVER_PARAMETERS
+
+README = (WORKSPACE / 'README.md').read_text(encoding='utf-8')
+
+
+def test_ci_runs_the_readme_test_command():
+    ci = (WORKSPACE / '.ci' / 'run').read_text(encoding='utf-8')
+    assert 'bash launch_scripts/run_tests.sh' in README
+    assert 'bash launch_scripts/run_tests.sh' in ci
+
+
+def test_scripts_named_in_the_readme_exist():
+    for script in set(re.findall(r'launch_scripts/[\w.]+\.sh', README)):
+        assert (WORKSPACE / script).is_file(), f'README names {script}, which does not exist'
+
+
+def test_every_driver_parameter_is_documented_with_its_allowed_values():
+    rows = {m.group(1): m.group(0) for m in re.finditer(r'^\| `(\w+)` \|.*$', README, re.M)}
+    for spec in DRIVER_PARAMETERS:
+        assert spec.name in rows, f'parameter {spec.name} missing from the README table'
+        assert f'| {spec.allowed()} |' in rows[spec.name], f'{spec.name}: allowed values differ'
+        assert spec.description in rows[spec.name], f'{spec.name}: description differs'
