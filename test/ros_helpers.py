@@ -147,3 +147,70 @@ def listening(**kwargs):
         yield listener
     finally:
         listener.close()
+
+
+class PosePublisher:
+    """Publishes tracker frames on polhemus/<name>/pose as the driver does (one stamp each)."""
+
+    def __init__(self, names):
+        from inhand_mapping.pose_cdr import encode_pose_stamped  # noqa: F401 (import check)
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = Node('test_pose_publisher', context=self.context)
+        qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+        self.publishers = {name: self.node.create_publisher(PoseStamped, f'polhemus/{name}/pose',
+                                                            qos) for name in names}
+
+    def wait_for_subscribers(self, timeout: float = 20.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if all(p.get_subscription_count() > 0 for p in self.publishers.values()):
+                return
+            time.sleep(0.05)
+        raise AssertionError('no subscriber for the pose topics')
+
+    def publish(self, frames, rate_factor: float = 2.0, frame_rate: float = 240.0) -> None:
+        from inhand_common.ros_time import stamp_from_seconds
+        start = time.monotonic()
+        for k, (t, frame) in enumerate(frames):
+            stamp = stamp_from_seconds(t)
+            for name, (p, q) in frame.items():
+                msg = PoseStamped()
+                msg.header.stamp = stamp
+                msg.header.frame_id = 'polhemus_source'
+                msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = map(float, p)
+                (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+                 msg.pose.orientation.w) = map(float, q)
+                self.publishers[name].publish(msg)
+            ahead = k / (frame_rate * rate_factor) - (time.monotonic() - start)
+            if ahead > 0:
+                time.sleep(ahead)
+
+    def close(self):
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def call_trigger(service: str, timeout: float = 20.0):
+    """Call a std_srvs/Trigger service once; returns the response."""
+    from std_srvs.srv import Trigger
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node('test_trigger_client', context=context)
+    try:
+        client = node.create_client(Trigger, service)
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise AssertionError(f'service {service} not available')
+        from rclpy.executors import SingleThreadedExecutor
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        future = client.call_async(Trigger.Request())
+        deadline = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        if not future.done():
+            raise AssertionError(f'{service}: no answer within {timeout} s')
+        return future.result()
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

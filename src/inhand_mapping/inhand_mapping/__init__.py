@@ -1,0 +1,1 @@
+"""Probabilistic volumetric maps of objects from in-hand exploration."""

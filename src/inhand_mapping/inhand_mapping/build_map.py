@@ -1,0 +1,235 @@
+"""``build_map``: the map the registration and occupancy nodes would build, from a bag.
+
+    build_map BAG [--config config/mapping.yaml] [--output-dir maps] [--name NAME]
+                  [--set NAME=VALUE ...]
+
+Reads a rosbag2 bag (MCAP or sqlite3) holding the driver's ``polhemus/<name>/pose``
+topics, runs the same registration and occupancy code with the same parameters (the
+``registration_node`` and ``occupancy_node`` sections of the YAML file, then ``--set``
+overrides), and writes ``<name>.npz`` and ``<name>.ply`` as ``occupancy/save`` would. No
+DDS involved. A truncated bag is reported with what could be read, and the map of that
+part is still written (exit code 1); a bag without the topics is refused (exit code 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from inhand_common.parameters import ParameterError, load_yaml_parameters, validate
+from inhand_mapping.clouds import pack_registered, unpack_registered
+from inhand_mapping.map_products import MapProducts, save_map
+from inhand_mapping.mapping_config import (OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS,
+                                           make_grid, make_registrar)
+from inhand_mapping.occupancy import WindowedIntegrator
+from inhand_mapping.pose_cdr import decode_pose_stamped
+
+EXIT_TRUNCATED = 1
+EXIT_BAD_INPUT = 2
+CHUNK = 4096  # messages decoded and registered together
+
+
+class Progress:
+    """A progress line on stderr: redrawn in place on a terminal, every 10% otherwise."""
+
+    def __init__(self, total: int, stream=sys.stderr):
+        self.total = max(total, 1)
+        self.stream = stream
+        self.start = time.monotonic()
+        self.tty = stream.isatty()
+        self._last_decile = -1
+
+    def update(self, done: int) -> None:
+        fraction = min(done / self.total, 1.0)
+        elapsed = time.monotonic() - self.start
+        rate = done / elapsed if elapsed > 0 else 0.0
+        line = (f'build_map: [{"#" * int(fraction * 30):<30}] {fraction:6.1%} '
+                f'{done}/{self.total} messages, {rate:,.0f} msg/s')
+        if self.tty:
+            self.stream.write('\r' + line)
+            self.stream.flush()
+        elif int(fraction * 10) > self._last_decile:
+            self._last_decile = int(fraction * 10)
+            print(line, file=self.stream, flush=True)
+
+    def close(self) -> None:
+        if self.tty:
+            self.stream.write('\n')
+
+
+def parse_overrides(pairs: list[str]) -> dict:
+    values = {}
+    for pair in pairs:
+        name, sep, text = pair.partition('=')
+        if not sep or not name:
+            raise ParameterError([f'--set {pair!r}: expected NAME=VALUE'])
+        values[name.strip()] = yaml.safe_load(text)
+    return values
+
+
+def load_parameters(config: str | None, overrides: dict) -> tuple[dict, dict]:
+    """Validated (registration, occupancy) parameter values, as the nodes would get them."""
+    registration = load_yaml_parameters(config, 'registration_node') if config else {}
+    occupancy = load_yaml_parameters(config, 'occupancy_node') if config else {}
+    registration_names = {s.name for s in REGISTRATION_PARAMETERS}
+    occupancy_names = {s.name for s in OCCUPANCY_PARAMETERS}
+    unknown = sorted(set(overrides) - registration_names - occupancy_names)
+    if unknown:
+        raise ParameterError([f"--set: unknown parameter '{name}'" for name in unknown])
+    registration.update({k: v for k, v in overrides.items() if k in registration_names})
+    occupancy.update({k: v for k, v in overrides.items() if k in occupancy_names})
+    return validate(REGISTRATION_PARAMETERS, registration), validate(OCCUPANCY_PARAMETERS,
+                                                                    occupancy)
+
+
+def build(bag: Path, registration_values: dict, occupancy_values: dict,
+          progress: bool = True) -> dict:
+    """Run the bag through registration and occupancy; returns the pieces and a report."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    registrar = make_registrar(registration_values)
+    grid = make_grid(occupancy_values)
+    integrator = WindowedIntegrator(grid, occupancy_values['integration_window'])
+    fingers = list(registration_values['finger_names'])
+    topics = {f'polhemus/{name}/pose': index for index, name in enumerate(fingers)}
+    object_topic = None
+    if registration_values['mode'] == 'tracked':
+        object_topic = f'polhemus/{registration_values["object_name"]}/pose'
+    report = {'messages': 0, 'truncated': None, 'bag_start': None, 'bag_end': None}
+
+    def process(chunk: list[tuple[str, bytes]]) -> None:
+        if not chunk:
+            return
+        decoded = [(topic, *decode_pose_stamped(raw)) for topic, raw in chunk]
+        times = np.array([sec + nanosec * 1e-9 for _, sec, nanosec, _, _ in decoded])
+        poses = np.array([pose for *_, pose in decoded])
+        is_object = np.array([topic == object_topic for topic, *_ in decoded])
+        finger_ids = np.array([topics.get(topic, -1) for topic, *_ in decoded])
+        # Feed the registrar in slices of sensor time shorter than max_pending, object
+        # poses before fingertips, as a live stream interleaves them: a whole chunk of
+        # object poses at once would age its own fingertips out of the pose history.
+        slice_ids = np.floor(times / (registration_values['max_pending'] / 2.0))
+        for slice_id in np.unique(slice_ids):
+            part = slice_ids == slice_id
+            for k in np.flatnonzero(part & is_object):
+                registrar.add_object_pose(times[k], poses[k, :3], poses[k, 3:])
+            tips = part & ~is_object
+            if tips.any():
+                registrar.add_fingertips(times[tips], poses[tips, :3], finger_ids[tips])
+            integrate(*registrar.drain())
+
+    def integrate(points, times, finger_ids) -> None:
+        # Through the topic's float32 layout, so the map equals the node's to the bit.
+        points, times, _ = unpack_registered(pack_registered(points, times, finger_ids))
+        integrator.add(points, times)
+
+    try:
+        reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+        reader.open()
+    except Exception as error:  # rosbags raises several types for foreign files
+        raise ValueError(f'{bag}: cannot open as a rosbag2 bag (MCAP or sqlite3): {error}') \
+            from None
+    try:
+        wanted = set(topics) | ({object_topic} if object_topic else set())
+        connections = [c for c in reader.connections if c.topic.lstrip('/') in wanted]
+        found = {c.topic.lstrip('/') for c in connections}
+        missing = sorted(wanted - found)
+        if missing:
+            raise ValueError(f'{bag}: no {", ".join(missing)} in this bag; it has '
+                             f'{sorted({c.topic for c in reader.connections}) or "no topics"}')
+        wrong = [c for c in connections if c.msgtype != 'geometry_msgs/msg/PoseStamped']
+        if wrong:
+            raise ValueError(f'{bag}: {wrong[0].topic} is {wrong[0].msgtype}, '
+                             'expected geometry_msgs/msg/PoseStamped')
+        total = sum(c.msgcount for c in connections)
+        bar = Progress(total) if progress else None
+        chunk: list[tuple[str, bytes]] = []
+        try:
+            for connection, timestamp, raw in reader.messages(connections=connections):
+                chunk.append((connection.topic.lstrip('/'), raw))
+                report['bag_start'] = report['bag_start'] or timestamp
+                report['bag_end'] = timestamp
+                report['messages'] += 1
+                if len(chunk) >= CHUNK:
+                    process(chunk)
+                    chunk = []
+                    if bar:
+                        bar.update(report['messages'])
+        except Exception as error:  # a truncated or corrupt bag: keep what was read
+            report['truncated'] = (f'{type(error).__name__}: {error}' if str(error)
+                                   else type(error).__name__)
+        process(chunk)
+        if bar:
+            bar.update(report['messages'])
+            bar.close()
+        report['expected_messages'] = total
+    finally:
+        reader.close()
+    integrate(*registrar.finish())
+    integrator.flush()
+    return {'grid': grid, 'registrar': registrar, 'report': report}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog='build_map', description=__doc__.split('\n\n')[0],
+                                     epilog=__doc__.split('\n\n', 2)[2],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('bag', type=Path, help='bag folder, or .mcap / .db3 file')
+    parser.add_argument('--config', help='ROS parameter file with registration_node and '
+                        'occupancy_node sections (e.g. config/mapping.yaml)')
+    parser.add_argument('--output-dir', type=Path, default=Path('maps'))
+    parser.add_argument('--name', help='file name stem (default: the bag name)')
+    parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                        help='override a parameter (repeatable)')
+    parser.add_argument('--quiet', action='store_true', help='no progress line')
+    args = parser.parse_args(argv)
+    try:
+        registration_values, occupancy_values = load_parameters(args.config,
+                                                                parse_overrides(args.set))
+        if not args.bag.exists():
+            raise ValueError(f'{args.bag}: no such bag')
+        start = time.monotonic()
+        result = build(args.bag, registration_values, occupancy_values,
+                       progress=not args.quiet)
+    except (ParameterError, ValueError, OSError) as error:
+        print(f'build_map: {error}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    elapsed = time.monotonic() - start
+    grid, registrar, report = result['grid'], result['registrar'], result['report']
+    threshold = occupancy_values['occupied_threshold']
+    name = args.name or args.bag.name.rsplit('.', 1)[0] or 'map'
+    npz, ply = save_map(grid, args.output_dir, name, threshold, 'object',
+                        extra={'bag': str(args.bag), 'truncated': report['truncated']})
+    stats = registrar.stats
+    span = ((report['bag_end'] or 0) - (report['bag_start'] or 0)) * 1e-9
+    touched, occupied = MapProducts(grid, threshold).cells()
+    frame = MapProducts(grid, threshold).object_frame()
+    print(f'build_map: {report["messages"]} messages, {span:.1f} s of data in {elapsed:.2f} s '
+          f'({span / elapsed if elapsed > 0 else float("inf"):.1f}x real time)')
+    print(f'  registration ({registration_values["mode"]}): {stats.registered} of '
+          f'{stats.received} fingertip positions; dropped {stats.dropped_gap} (object pose '
+          f'gap), {stats.dropped_before_object} (before the first object pose), '
+          f'{stats.dropped_invalid} (invalid)')
+    print(f'  map: {grid.counts.integrated} points integrated, {grid.counts.outside} outside '
+          f'the workspace, {grid.counts.invalid} invalid; {len(touched)} cells touched, '
+          f'{len(occupied)} above {threshold:g}')
+    if frame is not None:
+        print('  centre of mass (object frame): '
+              + ', '.join(f'{v:+.4f}' for v in frame.centre_of_mass) + ' m')
+    print(f'  wrote {npz} and {ply}')
+    if report['truncated']:
+        print(f'build_map: the bag is truncated or corrupt: read {report["messages"]} of '
+              f'{report["expected_messages"]} messages before {report["truncated"]}; the map '
+              'above is built from what was read', file=sys.stderr)
+        return EXIT_TRUNCATED
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,51 @@
+"""What is made from a map for people and other nodes: clouds, the object frame, files.
+
+Shared by the occupancy node and ``build_map`` so both publish and save the same things.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from inhand_mapping.clouds import map_cells
+from inhand_mapping.map_io import save_npz, save_ply
+from inhand_mapping.object_frame import ObjectFrame, object_frame
+from inhand_mapping.occupancy import OccupancyGrid
+
+__all__ = ['MapProducts', 'save_map']
+
+
+class MapProducts:
+    def __init__(self, grid: OccupancyGrid, threshold: float):
+        self.grid = grid
+        self.threshold = threshold
+
+    def cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """(touched cells, occupied cells) in the clouds.MAP_CELL_DTYPE layout."""
+        touched = map_cells(self.grid)
+        return touched, touched[touched['intensity'] > self.threshold]
+
+    def object_frame(self) -> ObjectFrame | None:
+        centres, probabilities, _, _ = self.grid.cells(threshold=self.threshold)
+        return object_frame(centres, probabilities, self.threshold)
+
+
+def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
+             frame_id: str = 'object', extra: dict | None = None) -> tuple[Path, Path]:
+    """``<folder>/<name>.npz`` (the whole grid) and ``<name>.ply`` (occupied cells), atomically.
+
+    The NPZ metadata also records the threshold and the object-centric frame.
+    """
+    frame = MapProducts(grid, threshold).object_frame()
+    info = dict(extra or {}, occupied_threshold=threshold)
+    if frame is not None:
+        info['object_centric'] = {'centre_of_mass': frame.centre_of_mass.tolist(),
+                                  'principal_axes': frame.principal_axes.tolist(),
+                                  'principal_extents': frame.principal_extents.tolist(),
+                                  'occupied_cells': frame.cells}
+    folder = Path(folder)
+    npz = save_npz(grid, folder / f'{name}.npz', frame_id=frame_id, extra=info)
+    ply = save_ply(folder / f'{name}.ply', *grid.cells(threshold=threshold), frame_id=frame_id)
+    return npz, ply

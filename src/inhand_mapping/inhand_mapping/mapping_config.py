@@ -1,0 +1,106 @@
+"""Parameters of the registration and occupancy nodes, shared with ``build_map``.
+
+One table per node; ``build_map`` reads the same sections of the same YAML file and
+builds the same objects through the same functions, so a bag processed offline gives the
+map the nodes would have built.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from inhand_common.parameters import ParameterError, ParamSpec
+from inhand_mapping.occupancy import GridSpec, OccupancyGrid, SensorModel
+from inhand_mapping.registration import Registrar
+
+__all__ = ['REGISTRATION_PARAMETERS', 'OCCUPANCY_PARAMETERS', 'make_registrar', 'make_grid',
+           'check_registration', 'check_occupancy']
+
+REGISTRATION_PARAMETERS = (
+    ParamSpec('mode', 'tracked', 'tracked: an object sensor is present and the map frame '
+              'is its frame; static: no object sensor, the map frame is the tracker frame',
+              choices=('tracked', 'static')),
+    ParamSpec('object_name', 'object', 'Station name of the object sensor '
+              '(subscribes polhemus/<object_name>/pose in tracked mode)'),
+    ParamSpec('finger_names', ['thumb', 'index', 'middle'], 'Station names of the fingertip '
+              'sensors (subscribes polhemus/<name>/pose)', min_length=1),
+    ParamSpec('max_gap', 0.05, 'Longest gap (s) between two object poses to interpolate '
+              'across; fingertips in longer gaps are dropped, never extrapolated',
+              minimum=0.001, maximum=5.0),
+    ParamSpec('max_pending', 1.0, 'Seconds a fingertip may wait for an object pose at or '
+              'after its stamp before it is dropped', minimum=0.01, maximum=60.0),
+    ParamSpec('publish_period', 0.05, 'Seconds between registration/points messages '
+              '(registered points are batched)', minimum=0.001, maximum=5.0),
+)
+
+OCCUPANCY_PARAMETERS = (
+    ParamSpec('workspace_size', 0.35, 'Edge of the mapped cube (m); a whole number of cells',
+              minimum=0.01, maximum=2.0),
+    ParamSpec('resolution', 0.005, 'Cell edge (m)', minimum=0.0005, maximum=0.1),
+    ParamSpec('workspace_centre', [0.0, 0.0, 0.0], 'Centre of the cube in the map frame (m)',
+              minimum=-5.0, maximum=5.0, length=3),
+    ParamSpec('sensor_sigma', 0.002, 'Standard deviation of the Gaussian sensor model, '
+              'paper eq. 3 (m)', minimum=1e-5, maximum=0.05),
+    ParamSpec('p_z_given_not_occupied', 0.45, 'P(Z | not O) of eq. 4: likelihood of a '
+              'measurement in an empty cell', minimum=0.01, maximum=0.99),
+    ParamSpec('prior', 0.5, 'Prior occupancy of every cell', minimum=0.01, maximum=0.99),
+    ParamSpec('clamp_min', 0.12, 'Lowest occupancy a cell can reach (log-odds clamping)',
+              minimum=0.001, maximum=0.99),
+    ParamSpec('clamp_max', 0.97, 'Highest occupancy a cell can reach (log-odds clamping)',
+              minimum=0.01, maximum=0.999),
+    ParamSpec('neighbourhood', 1, '1: update the containing cell (the paper); 27: also its '
+              '26 neighbours, each with eq. 3 at its own centre', choices=(1, 27)),
+    ParamSpec('occupied_threshold', 0.8, 'Cells above this probability are occupied '
+              '(occupancy/occupied, centre of mass, PLY)', minimum=0.5, maximum=0.999),
+    ParamSpec('integration_window', 0.1, 'Seconds of sensor time integrated as one batch '
+              '(clamping happens per batch; fixed windows make the map independent of '
+              'message batching)', minimum=0.001, maximum=10.0),
+    ParamSpec('publish_rate', 2.0, 'Map publications per second (only when it changed)',
+              minimum=0.01, maximum=100.0),
+    ParamSpec('output_dir', 'maps', 'Folder occupancy/save writes <map_name>.npz and .ply to'),
+    ParamSpec('map_name', 'map', 'File name stem of saved maps'),
+)
+
+
+def check_registration(values: Mapping[str, Any]) -> None:
+    names = list(values['finger_names'])
+    problems = []
+    if len(set(names)) != len(names):
+        problems.append(f"parameter 'finger_names' = {names} repeats a name")
+    if values['mode'] == 'tracked' and values['object_name'] in names:
+        problems.append(f"parameter 'object_name' = {values['object_name']!r} is also in "
+                        "'finger_names'")
+    if problems:
+        raise ParameterError(problems)
+
+
+def check_occupancy(values: Mapping[str, Any]) -> None:
+    problems = []
+    cells = values['workspace_size'] / values['resolution']
+    if abs(cells - round(cells)) > 1e-6:
+        problems.append(f"parameters 'workspace_size' = {values['workspace_size']} and "
+                        f"'resolution' = {values['resolution']}: the size must be a whole "
+                        f'number of cells (it is {cells:.3f})')
+    elif round(cells) > 1000:
+        problems.append(f'{round(cells)} cells per axis is more than 1000: use a coarser '
+                        "'resolution' or a smaller 'workspace_size'")
+    if not values['clamp_min'] < values['prior'] < values['clamp_max']:
+        problems.append("parameters 'clamp_min' < 'prior' < 'clamp_max' must hold (got "
+                        f"{values['clamp_min']}, {values['prior']}, {values['clamp_max']})")
+    if problems:
+        raise ParameterError(problems)
+
+
+def make_registrar(values: Mapping[str, Any]) -> Registrar:
+    check_registration(values)
+    return Registrar(values['mode'], values['max_gap'], values['max_pending'])
+
+
+def make_grid(values: Mapping[str, Any]) -> OccupancyGrid:
+    check_occupancy(values)
+    spec = GridSpec(values['workspace_size'], values['resolution'],
+                    tuple(values['workspace_centre']))
+    model = SensorModel(values['sensor_sigma'], values['p_z_given_not_occupied'],
+                        values['prior'], values['clamp_min'], values['clamp_max'],
+                        values['neighbourhood'])
+    return OccupancyGrid(spec, model)

@@ -1,0 +1,109 @@
+"""Compiled inner loops of the occupancy update (numba), used only by occupancy.py.
+
+Why compiled: the update is a scatter (each point adds to its cell, or to 27 cells), and
+in numpy a scatter costs several full passes over the points plus a ``bincount`` per
+statistic; measured on the project machine that tops out near 15 M points/s, while one
+compiled pass does over 100 M points/s. The maths is described in occupancy.py.
+
+Two steps per batch:
+
+1. ``accumulate``: one pass over the points; per containing cell the count ``n``, the sum
+   of offsets from the cell centre ``sum e`` and of their squares ``sum |e|^2`` (in cell
+   units), and the earliest time; the cells touched are listed.
+2. ``apply``: per touched cell, the summed ``log(L / c)`` for the cell itself and, with the
+   27-neighbourhood, each neighbour, from those sums; then clamping and resetting the
+   scratch arrays for the next batch.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def accumulate(points, times, has_times, origin, inv_res, n, count, sum_e, sum_e2, first,
+               touched):
+    """Returns (cells touched, points integrated, outside, invalid)."""
+    n_touched = 0
+    integrated = 0
+    outside = 0
+    invalid = 0
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(points.shape[0]):
+        x = (points[i, 0] - ox) * inv_res
+        y = (points[i, 1] - oy) * inv_res
+        z = (points[i, 2] - oz) * inv_res
+        t = times[i] if has_times else 0.0
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
+                and math.isfinite(t)):
+            invalid += 1
+            continue
+        if x < 0.0 or y < 0.0 or z < 0.0 or x >= n or y >= n or z >= n:
+            outside += 1
+            continue
+        ix, iy, iz = int(x), int(y), int(z)
+        c = (ix * n + iy) * n + iz
+        if count[c] == 0:
+            touched[n_touched] = c
+            n_touched += 1
+        ex, ey, ez = x - ix - 0.5, y - iy - 0.5, z - iz - 0.5
+        count[c] += 1
+        sum_e[0, c] += ex
+        sum_e[1, c] += ey
+        sum_e[2, c] += ez
+        sum_e2[c] += ex * ex + ey * ey + ez * ez
+        if has_times and t < first[c]:
+            first[c] = t
+        integrated += 1
+    return n_touched, integrated, outside, invalid
+
+
+@numba.njit(cache=True, nogil=True)
+def apply(touched, n_touched, count, sum_e, sum_e2, first, log_odds, hits, first_touch, n,
+          gauss, log_c, reach, l_min, l_max):
+    """Add the batch to the map; ``gauss`` = -res^2 / (2 sigma^2), ``reach`` 0 or 1."""
+    for k in range(n_touched):
+        c = touched[k]
+        cnt = count[c]
+        ix, iy, iz = c // (n * n), (c // n) % n, c % n
+        s2, sx, sy, sz = sum_e2[c], sum_e[0, c], sum_e[1, c], sum_e[2, c]
+        for dx in range(-reach, reach + 1):
+            jx = ix + dx
+            if jx < 0 or jx >= n:
+                continue
+            for dy in range(-reach, reach + 1):
+                jy = iy + dy
+                if jy < 0 or jy >= n:
+                    continue
+                for dz in range(-reach, reach + 1):
+                    jz = iz + dz
+                    if jz < 0 or jz >= n:
+                        continue
+                    # sum over points of |e - o|^2 = S2 - 2 o.S1 + n |o|^2
+                    d2 = s2 - 2.0 * (dx * sx + dy * sy + dz * sz) + \
+                        cnt * (dx * dx + dy * dy + dz * dz)
+                    log_odds[(jx * n + jy) * n + jz] += gauss * d2 - cnt * log_c
+        hits[c] += cnt
+        if math.isfinite(first[c]) and not (first_touch[c] <= first[c]):  # NaN: untouched
+            first_touch[c] = first[c]
+    # Clamp every cell this batch changed, then clear the scratch arrays.
+    for k in range(n_touched):
+        c = touched[k]
+        ix, iy, iz = c // (n * n), (c // n) % n, c % n
+        for jx in range(max(ix - reach, 0), min(ix + reach + 1, n)):
+            for jy in range(max(iy - reach, 0), min(iy + reach + 1, n)):
+                for jz in range(max(iz - reach, 0), min(iz + reach + 1, n)):
+                    j = (jx * n + jy) * n + jz
+                    if log_odds[j] < l_min:
+                        log_odds[j] = l_min
+                    elif log_odds[j] > l_max:
+                        log_odds[j] = l_max
+        count[c] = 0
+        sum_e[0, c] = 0.0
+        sum_e[1, c] = 0.0
+        sum_e[2, c] = 0.0
+        sum_e2[c] = 0.0
+        first[c] = np.inf

@@ -1,0 +1,128 @@
+"""ROS 2 node ``occupancy_node``: registered points -> probabilistic voxel map.
+
+Subscribes ``registration/points`` (PointCloud2, layout in clouds.py). Publishes, at
+``publish_rate`` when the map changed, reliable and transient-local (a late subscriber
+gets the latest map):
+
+* ``occupancy/cloud``: every touched cell; ``occupancy/occupied``: cells above
+  ``occupied_threshold`` (PointCloud2, frame ``object``; fields x y z intensity hits
+  first_touch);
+* ``occupancy/center_of_mass`` (PointStamped, frame ``object``): origin of the
+  ``object_centric`` frame.
+
+Services (std_srvs/Trigger): ``occupancy/reset`` clears the map; ``occupancy/save``
+writes ``<output_dir>/<map_name>.npz`` (whole grid) and ``.ply`` (occupied cells)
+atomically and answers with the paths.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from geometry_msgs.msg import PointStamped
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from std_srvs.srv import Trigger
+
+from inhand_common.node_runner import run_node
+from inhand_common.point_cloud import from_point_cloud2, to_point_cloud2
+from inhand_common.ros_parameters import declare_parameters
+from inhand_mapping.clouds import unpack_registered
+from inhand_mapping.map_products import MapProducts, save_map
+from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, make_grid
+from inhand_mapping.occupancy import WindowedIntegrator
+
+MAP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+POINTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+MAP_FRAME = 'object'
+
+
+class OccupancyNode(Node):
+    def __init__(self):
+        super().__init__('occupancy_node')
+        self.values = declare_parameters(self, OCCUPANCY_PARAMETERS)
+        self.grid = make_grid(self.values)
+        self.integrator = WindowedIntegrator(self.grid, self.values['integration_window'])
+        self.products = MapProducts(self.grid, self.values['occupied_threshold'])
+        self._changed = False
+        self._latest_stamp = None
+        self.create_subscription(PointCloud2, 'registration/points', self._on_points, POINTS_QOS)
+        self._cloud = self.create_publisher(PointCloud2, 'occupancy/cloud', MAP_QOS)
+        self._occupied = self.create_publisher(PointCloud2, 'occupancy/occupied', MAP_QOS)
+        self._com = self.create_publisher(PointStamped, 'occupancy/center_of_mass', MAP_QOS)
+        self.create_service(Trigger, 'occupancy/reset', self._on_reset)
+        self.create_service(Trigger, 'occupancy/save', self._on_save)
+        self.create_timer(1.0 / self.values['publish_rate'], self._publish)
+        spec = self.grid.spec
+        self.get_logger().info(
+            f'map: {spec.cells_per_axis}^3 cells of {spec.resolution * 1000:g} mm, '
+            f'{spec.size:g} m cube centred at {list(spec.centre)} in {MAP_FRAME}; '
+            f'neighbourhood {self.grid.model.neighbourhood}, '
+            f'P(Z|not O) {self.grid.model.p_z_given_not_occupied:g}')
+
+    def _on_points(self, msg: PointCloud2) -> None:
+        points, times, _ = unpack_registered(from_point_cloud2(msg))
+        if self.integrator.add(points, times):
+            self._changed = True
+        if len(times):
+            self._latest_stamp = msg.header.stamp
+
+    def _publish(self) -> None:
+        if not self._changed:
+            return
+        self._changed = False
+        stamp = self._latest_stamp or self.get_clock().now().to_msg()
+        touched, occupied = self.products.cells()
+        self._cloud.publish(to_point_cloud2(touched, MAP_FRAME, stamp))
+        self._occupied.publish(to_point_cloud2(occupied, MAP_FRAME, stamp))
+        frame = self.products.object_frame()
+        if frame is not None:
+            msg = PointStamped()
+            msg.header.frame_id = MAP_FRAME
+            msg.header.stamp = stamp
+            msg.point.x, msg.point.y, msg.point.z = (float(v) for v in frame.centre_of_mass)
+            self._com.publish(msg)
+
+    def _on_reset(self, _request, response):
+        self.integrator.clear()
+        self.grid.reset()
+        self._changed = True
+        response.success = True
+        response.message = 'map cleared'
+        self.get_logger().info('map cleared')
+        return response
+
+    def _on_save(self, _request, response):
+        if self.integrator.flush():
+            self._changed = True
+        try:
+            paths = save_map(self.grid, Path(self.values['output_dir']), self.values['map_name'],
+                             self.values['occupied_threshold'], MAP_FRAME,
+                             extra={'node': self.get_fully_qualified_name()})
+        except OSError as error:
+            response.success = False
+            response.message = f'could not save the map: {error}'
+            self.get_logger().error(response.message)
+            return response
+        response.success = True
+        response.message = ' '.join(str(p) for p in paths)
+        self.get_logger().info(f'saved {response.message}')
+        self._publish()
+        return response
+
+    def close(self) -> None:
+        counts = self.grid.counts
+        self.get_logger().info(
+            f'stopped: {counts.integrated} points integrated, {counts.outside} outside the '
+            f'workspace, {counts.invalid} invalid, {self.integrator.pending} not yet integrated')
+
+
+def main(args=None) -> int:
+    return run_node('occupancy_node', OccupancyNode, args, executor_factory=EventsExecutor)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

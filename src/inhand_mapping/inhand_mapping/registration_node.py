@@ -1,0 +1,107 @@
+"""ROS 2 node ``registration_node``: fingertip poses -> points in the object (map) frame.
+
+Subscribes ``polhemus/<finger>/pose`` for each finger name and, in tracked mode,
+``polhemus/<object_name>/pose`` (geometry_msgs/PoseStamped, reliable). Publishes every
+``publish_period`` the points registered since the last message on
+``registration/points`` (sensor_msgs/PointCloud2, layout in clouds.py, frame ``object``),
+and once, latched, the pose of the ``object`` frame in the tracker frame on
+``registration/object_frame`` (geometry_msgs/PoseStamped: the object sensor's first pose;
+identity in static mode).
+
+Poses are taken raw (``raw=True``) and decoded by pose_cdr: at 240 Hz x 4 stations,
+rclpy's own deserialisation would be most of this node's time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+
+from inhand_common.node_runner import run_node
+from inhand_common.point_cloud import to_point_cloud2
+from inhand_common.ros_parameters import declare_parameters
+from inhand_common.ros_time import stamp_from_seconds
+from inhand_mapping.clouds import pack_registered
+from inhand_mapping.mapping_config import REGISTRATION_PARAMETERS, make_registrar
+from inhand_mapping.pose_cdr import decode_pose_stamped
+
+POSE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+POINTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+MAP_FRAME = 'object'
+
+
+class RegistrationNode(Node):
+    def __init__(self):
+        super().__init__('registration_node')
+        self.values = declare_parameters(self, REGISTRATION_PARAMETERS)
+        self.registrar = make_registrar(self.values)
+        self.fingers = list(self.values['finger_names'])
+        for index, name in enumerate(self.fingers):
+            self.create_subscription(
+                PoseStamped, f'polhemus/{name}/pose',
+                lambda raw, index=index: self._on_fingertip(raw, index), POSE_QOS, raw=True)
+        if self.values['mode'] == 'tracked':
+            self.create_subscription(PoseStamped, f'polhemus/{self.values["object_name"]}/pose',
+                                     self._on_object, POSE_QOS, raw=True)
+        self._points = self.create_publisher(PointCloud2, 'registration/points', POINTS_QOS)
+        self._object_frame = self.create_publisher(PoseStamped, 'registration/object_frame',
+                                                   LATCHED_QOS)
+        self._frame_sent = False
+        self._last_stamp = None
+        self.create_timer(self.values['publish_period'], self._publish)
+        if self.values['mode'] == 'static':
+            self._send_object_frame(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+        self.get_logger().info(
+            f"registering {', '.join(self.fingers)} in {self.values['mode']} mode"
+            + (f" against {self.values['object_name']}" if self.values['mode'] == 'tracked'
+               else ' (map frame = tracker frame)'))
+
+    def _on_fingertip(self, raw: bytes, index: int) -> None:
+        sec, nanosec, _, pose = decode_pose_stamped(raw)
+        t = sec + nanosec * 1e-9
+        self.registrar.add_fingertips(np.array([t]), np.array([pose[:3]]), np.array([index]))
+
+    def _on_object(self, raw: bytes) -> None:
+        sec, nanosec, _, pose = decode_pose_stamped(raw)
+        self.registrar.add_object_pose(sec + nanosec * 1e-9, pose[:3], pose[3:])
+        if not self._frame_sent and self.registrar.first_object_pose is not None:
+            self._send_object_frame(*self.registrar.first_object_pose)
+
+    def _send_object_frame(self, position, quaternion) -> None:
+        msg = PoseStamped()
+        msg.header.frame_id = 'polhemus_source'
+        msg.header.stamp = self.get_clock().now().to_msg()
+        p, q = msg.pose.position, msg.pose.orientation
+        p.x, p.y, p.z = (float(v) for v in position)
+        q.x, q.y, q.z, q.w = (float(v) for v in quaternion)
+        self._object_frame.publish(msg)
+        self._frame_sent = True
+
+    def _publish(self) -> None:
+        points, times, fingers = self.registrar.drain()
+        if len(points) == 0:
+            return
+        cloud = pack_registered(points, times, fingers)
+        self._points.publish(to_point_cloud2(cloud, MAP_FRAME, stamp_from_seconds(times[-1])))
+
+    def close(self) -> None:
+        stats = self.registrar.stats
+        self.get_logger().info(
+            f'stopped: {stats.registered} of {stats.received} fingertip positions registered; '
+            f'dropped {stats.dropped_gap} (object pose gap), {stats.dropped_before_object} '
+            f'(before the first object pose), {stats.dropped_invalid} (invalid); '
+            f'{stats.pending} pending')
+
+
+def main(args=None) -> int:
+    return run_node('registration_node', RegistrationNode, args, executor_factory=EventsExecutor)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,139 @@
+"""Registration and occupancy nodes end to end over real DDS, and build_map on the same data.
+
+Driver-format poses (fingertips on a sphere fixed to a moving, rotating object) go in; the
+occupied cloud that comes out lies on the sphere's shell in the object frame, and the map
+the nodes save is bit for bit the map build_map makes from a bag of the same poses.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import PointStamped, PoseStamped
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+
+from inhand_common.point_cloud import from_point_cloud2
+from inhand_mapping.map_io import load_npz, read_ply
+from pose_sessions import sphere_session, write_pose_bag
+from ros_helpers import WORKSPACE, PosePublisher, call_trigger, executable_path, running
+
+pytestmark = pytest.mark.dds
+
+RADIUS = 0.04
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def latest(topic: str, msg_type, timeout: float = 10.0):
+    """The latched message on ``topic`` (transient-local: a late subscriber gets it)."""
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node('test_latched_reader', context=context)
+    got = []
+    node.create_subscription(msg_type, topic, got.append, LATCHED)
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        import time
+        deadline = time.monotonic() + timeout
+        while not got and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        assert got, f'nothing latched on {topic}'
+        return got[-1]
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture(scope='module')
+def session():
+    return sphere_session(seconds=4.0, surface_points=120, moving=True)
+
+
+def test_nodes_map_a_moving_sphere_and_match_build_map(session, tmp_path):
+    frames, centre = session
+    config = str(WORKSPACE / 'config' / 'mapping.yaml')
+    occupancy_args = ['occupancy_node', '--ros-args', '--params-file', config,
+                      '-p', f'output_dir:={tmp_path}', '-p', 'map_name:=node_map']
+    with running(['registration_node', '--ros-args', '--params-file', config]) as registration, \
+            running(occupancy_args) as occupancy:
+        publisher = PosePublisher(['object', 'thumb', 'index', 'middle'])
+        try:
+            publisher.wait_for_subscribers()
+            publisher.publish(frames, rate_factor=2.0)
+        finally:
+            publisher.close()
+        object_frame = latest('registration/object_frame', PoseStamped)
+        # The registration node batches every 50 ms: give the last batch time to arrive.
+        import time
+        time.sleep(1.0)
+        response = call_trigger('occupancy/save')
+        assert response.success, response.message
+        occupied = from_point_cloud2(latest('occupancy/occupied', PointCloud2))
+        com = latest('occupancy/center_of_mass', PointStamped)
+        assert registration.interrupt() == 0, registration.output()
+        assert occupancy.interrupt() == 0, occupancy.output()
+    assert 'of 2880 fingertip positions registered' in registration.output()
+    # The object frame is the object sensor's first pose.
+    first_position = frames[0][1]['object'][0]
+    assert np.allclose([object_frame.pose.position.x, object_frame.pose.position.y,
+                        object_frame.pose.position.z], first_position, atol=1e-9)
+    # Every occupied cell lies on the sphere's shell (within a half cell diagonal).
+    cells = np.stack([occupied['x'], occupied['y'], occupied['z']], axis=1).astype(float)
+    assert len(cells) >= 40
+    radial = np.linalg.norm(cells - centre, axis=1) - RADIUS
+    assert np.abs(radial).max() <= 0.005 * math.sqrt(3) / 2 + 1e-6
+    assert np.all(occupied['intensity'] > 0.8)
+    assert np.linalg.norm(np.array([com.point.x, com.point.y, com.point.z]) - centre) < 0.01
+    # build_map on a bag of the same poses writes the same map.
+    bag = write_pose_bag(tmp_path / 'session', frames)
+    result = subprocess.run([executable_path('build_map'), str(bag), '--config', config,
+                             '--output-dir', str(tmp_path), '--name', 'bag_map', '--quiet'],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    node_grid, _ = load_npz(tmp_path / 'node_map.npz')
+    bag_grid, _ = load_npz(tmp_path / 'bag_map.npz')
+    assert node_grid.counts.integrated == bag_grid.counts.integrated == 2880
+    assert np.array_equal(node_grid.log_odds, bag_grid.log_odds)
+    assert np.array_equal(node_grid.hits, bag_grid.hits)
+    node_ply, bag_ply = read_ply(tmp_path / 'node_map.ply'), read_ply(tmp_path / 'bag_map.ply')
+    assert np.array_equal(node_ply, bag_ply)
+
+
+def test_reset_service_clears_the_map(tmp_path):
+    frames, _ = sphere_session(seconds=1.0, surface_points=30, moving=False)
+    config = str(WORKSPACE / 'config' / 'mapping.yaml')
+    with running(['registration_node', '--ros-args', '--params-file', config]), \
+            running(['occupancy_node', '--ros-args', '--params-file', config, '-p',
+                     f'output_dir:={tmp_path}']):
+        publisher = PosePublisher(['object', 'thumb', 'index', 'middle'])
+        try:
+            publisher.wait_for_subscribers()
+            publisher.publish(frames, rate_factor=2.0)
+        finally:
+            publisher.close()
+        import time
+        time.sleep(1.0)
+        assert call_trigger('occupancy/save').success
+        before, _ = load_npz(tmp_path / 'map.npz')
+        assert before.hits.sum() == 3 * len(frames)
+        response = call_trigger('occupancy/reset')
+        assert response.success and 'cleared' in response.message
+        assert call_trigger('occupancy/save').success
+        after, _ = load_npz(tmp_path / 'map.npz')
+        assert after.hits.sum() == 0 and np.all(after.log_odds == 0.0)
+
+
+def test_occupancy_node_refuses_a_workspace_that_is_not_whole_cells():
+    with running(['occupancy_node', '--ros-args', '-p', 'workspace_size:=0.3', '-p',
+                  'resolution:=0.007']) as node:
+        code = node.popen.wait(30)
+    assert code == 2, node.output()
+    assert "'workspace_size' = 0.3 and 'resolution' = 0.007" in node.output()
