@@ -14,6 +14,7 @@ from conftest import WORKSPACE
 
 EXECUTABLES = {
     'polhemus_liberty': ['liberty_driver', 'liberty_emulator'],
+    'inhand_mapping': ['registration_node', 'occupancy_node', 'build_map'],
 }
 
 

@@ -3,6 +3,9 @@
 import re
 
 from conftest import WORKSPACE
+import pytest
+
+from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS
 from polhemus_liberty.driver_config import DRIVER_PARAMETERS
 
 README = (WORKSPACE / 'README.md').read_text(encoding='utf-8')
@@ -19,9 +22,12 @@ def test_scripts_named_in_the_readme_exist():
         assert (WORKSPACE / script).is_file(), f'README names {script}, which does not exist'
 
 
-def test_every_driver_parameter_is_documented_with_its_allowed_values():
+@pytest.mark.parametrize('specs', [DRIVER_PARAMETERS, REGISTRATION_PARAMETERS,
+                                   OCCUPANCY_PARAMETERS], ids=['driver', 'registration',
+                                                               'occupancy'])
+def test_every_node_parameter_is_documented_with_its_allowed_values(specs):
     rows = {m.group(1): m.group(0) for m in re.finditer(r'^\| `(\w+)` \|.*$', README, re.M)}
-    for spec in DRIVER_PARAMETERS:
+    for spec in specs:
         assert spec.name in rows, f'parameter {spec.name} missing from the README table'
         assert f'| {spec.allowed()} |' in rows[spec.name], f'{spec.name}: allowed values differ'
         assert spec.description in rows[spec.name], f'{spec.name}: description differs'

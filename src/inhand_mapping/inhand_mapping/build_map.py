@@ -87,12 +87,93 @@ def load_parameters(config: str | None, overrides: dict) -> tuple[dict, dict]:
                                                                     occupancy)
 
 
+class BagMessages:
+    """The messages of ``topics`` in a bag, in time order, with what went wrong if anything.
+
+    Opens MCAP and sqlite3 bags with rosbags. An MCAP file rosbags cannot open because it
+    was cut short (no footer) is read record by record up to the cut instead. ``problem``
+    says what stopped the reading early (None if the bag was read to its end).
+    """
+
+    def __init__(self, bag: Path, topics: set[str]):
+        self.bag, self.topics = bag, topics
+        self.total = 0
+        self.problem: str | None = None
+        self._reader = None
+        self._recovered: list | None = None
+
+    def __enter__(self) -> 'BagMessages':
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+        try:
+            self._reader = AnyReader([self.bag], default_typestore=get_typestore(
+                Stores.ROS2_JAZZY))
+            self._reader.open()
+        except Exception as error:  # rosbags raises several types for unreadable files
+            self._reader = None
+            mcap = self._mcap_file()
+            if mcap is None:
+                raise ValueError(f'{self.bag}: cannot open as a rosbag2 bag (MCAP or sqlite3): '
+                                 f'{error}') from None
+            from inhand_common.mcap_recovery import RecoveryReport, recover_mcap
+            report = RecoveryReport()
+            try:
+                messages = list(recover_mcap(mcap, report))
+            except ValueError as not_mcap:
+                raise ValueError(f'{self.bag}: cannot open as a rosbag2 bag (MCAP or sqlite3): '
+                                 f'{error} ({not_mcap})') from None
+            self._check([(m.topic, m.msgtype) for m in messages])
+            self._recovered = [(m.topic.lstrip('/'), m.log_time, m.data) for m in messages
+                               if m.topic.lstrip('/') in self.topics]
+            self.total = len(self._recovered)
+            self.problem = (f'{str(error).rstrip(".")}; read the file record by record up to byte '
+                            f'{report.bytes_read} of {report.file_size} '
+                            f'({report.stopped_because or "end of data"})')
+            return self
+        connections = [c for c in self._reader.connections if c.topic.lstrip('/') in self.topics]
+        self._check([(c.topic, c.msgtype) for c in self._reader.connections])
+        self._connections = connections
+        self.total = sum(c.msgcount for c in connections)
+        return self
+
+    def _mcap_file(self) -> Path | None:
+        if self.bag.suffix == '.mcap' and self.bag.is_file():
+            return self.bag
+        found = sorted(self.bag.glob('*.mcap')) if self.bag.is_dir() else []
+        return found[0] if len(found) == 1 else None
+
+    def _check(self, available: list[tuple[str, str]]) -> None:
+        types = {}
+        for topic, msgtype in available:
+            types.setdefault(topic.lstrip('/'), msgtype)
+        missing = sorted(self.topics - set(types))
+        if missing:
+            raise ValueError(f'{self.bag}: no {", ".join(missing)} in this bag; it has '
+                             f'{sorted(types) or "no topics"}')
+        for topic in sorted(self.topics):
+            if types[topic] != 'geometry_msgs/msg/PoseStamped':
+                raise ValueError(f'{self.bag}: {topic} is {types[topic]}, '
+                                 'expected geometry_msgs/msg/PoseStamped')
+
+    def __iter__(self):
+        if self._recovered is not None:
+            yield from self._recovered
+            return
+        try:
+            for connection, timestamp, raw in self._reader.messages(
+                    connections=self._connections):
+                yield connection.topic.lstrip('/'), timestamp, raw
+        except Exception as error:  # a damaged bag: keep what was read
+            self.problem = f'{type(error).__name__}: {error}'
+
+    def __exit__(self, *exc) -> None:
+        if self._reader is not None:
+            self._reader.close()
+
+
 def build(bag: Path, registration_values: dict, occupancy_values: dict,
           progress: bool = True) -> dict:
     """Run the bag through registration and occupancy; returns the pieces and a report."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
     registrar = make_registrar(registration_values)
     grid = make_grid(occupancy_values)
     integrator = WindowedIntegrator(grid, occupancy_values['integration_window'])
@@ -129,48 +210,26 @@ def build(bag: Path, registration_values: dict, occupancy_values: dict,
         points, times, _ = unpack_registered(pack_registered(points, times, finger_ids))
         integrator.add(points, times)
 
-    try:
-        reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY))
-        reader.open()
-    except Exception as error:  # rosbags raises several types for foreign files
-        raise ValueError(f'{bag}: cannot open as a rosbag2 bag (MCAP or sqlite3): {error}') \
-            from None
-    try:
-        wanted = set(topics) | ({object_topic} if object_topic else set())
-        connections = [c for c in reader.connections if c.topic.lstrip('/') in wanted]
-        found = {c.topic.lstrip('/') for c in connections}
-        missing = sorted(wanted - found)
-        if missing:
-            raise ValueError(f'{bag}: no {", ".join(missing)} in this bag; it has '
-                             f'{sorted({c.topic for c in reader.connections}) or "no topics"}')
-        wrong = [c for c in connections if c.msgtype != 'geometry_msgs/msg/PoseStamped']
-        if wrong:
-            raise ValueError(f'{bag}: {wrong[0].topic} is {wrong[0].msgtype}, '
-                             'expected geometry_msgs/msg/PoseStamped')
-        total = sum(c.msgcount for c in connections)
-        bar = Progress(total) if progress else None
-        chunk: list[tuple[str, bytes]] = []
-        try:
-            for connection, timestamp, raw in reader.messages(connections=connections):
-                chunk.append((connection.topic.lstrip('/'), raw))
-                report['bag_start'] = report['bag_start'] or timestamp
-                report['bag_end'] = timestamp
-                report['messages'] += 1
-                if len(chunk) >= CHUNK:
-                    process(chunk)
-                    chunk = []
-                    if bar:
-                        bar.update(report['messages'])
-        except Exception as error:  # a truncated or corrupt bag: keep what was read
-            report['truncated'] = (f'{type(error).__name__}: {error}' if str(error)
-                                   else type(error).__name__)
+    wanted = set(topics) | ({object_topic} if object_topic else set())
+    chunk: list[tuple[str, bytes]] = []
+    with BagMessages(bag, wanted) as source:
+        bar = Progress(source.total) if progress else None
+        for topic, timestamp, raw in source:
+            chunk.append((topic, raw))
+            report['bag_start'] = report['bag_start'] or timestamp
+            report['bag_end'] = timestamp
+            report['messages'] += 1
+            if len(chunk) >= CHUNK:
+                process(chunk)
+                chunk = []
+                if bar:
+                    bar.update(report['messages'])
         process(chunk)
         if bar:
             bar.update(report['messages'])
             bar.close()
-        report['expected_messages'] = total
-    finally:
-        reader.close()
+        report['truncated'] = source.problem
+        report['expected_messages'] = source.total
     integrate(*registrar.finish())
     integrator.flush()
     return {'grid': grid, 'registrar': registrar, 'report': report}
@@ -224,9 +283,9 @@ def main(argv=None) -> int:
               + ', '.join(f'{v:+.4f}' for v in frame.centre_of_mass) + ' m')
     print(f'  wrote {npz} and {ply}')
     if report['truncated']:
-        print(f'build_map: the bag is truncated or corrupt: read {report["messages"]} of '
-              f'{report["expected_messages"]} messages before {report["truncated"]}; the map '
-              'above is built from what was read', file=sys.stderr)
+        print(f'build_map: the bag is truncated or damaged: {report["truncated"]}. The map '
+              f'above is built from the {report["messages"]} messages that could be read.',
+              file=sys.stderr)
         return EXIT_TRUNCATED
     return 0
 

@@ -41,7 +41,7 @@ OCCUPANCY_PARAMETERS = (
               minimum=-5.0, maximum=5.0, length=3),
     ParamSpec('sensor_sigma', 0.002, 'Standard deviation of the Gaussian sensor model, '
               'paper eq. 3 (m)', minimum=1e-5, maximum=0.05),
-    ParamSpec('p_z_given_not_occupied', 0.45, 'P(Z | not O) of eq. 4: likelihood of a '
+    ParamSpec('p_z_given_not_occupied', 0.45, 'P(Z given not O) of eq. 4: likelihood of a '
               'measurement in an empty cell', minimum=0.01, maximum=0.99),
     ParamSpec('prior', 0.5, 'Prior occupancy of every cell', minimum=0.01, maximum=0.99),
     ParamSpec('clamp_min', 0.12, 'Lowest occupancy a cell can reach (log-odds clamping)',

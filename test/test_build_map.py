@@ -1,0 +1,129 @@
+"""build_map on bags: MCAP and sqlite3, static and tracked, truncated and foreign bags."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+
+import numpy as np
+import pytest
+
+from inhand_mapping.map_io import load_npz, read_ply
+from pose_sessions import FINGERS, sphere_session, write_pose_bag
+from ros_helpers import WORKSPACE, executable_path
+
+CONFIG = str(WORKSPACE / 'config' / 'mapping.yaml')
+STATIC_CONFIG = str(WORKSPACE / 'config' / 'mapping_static.yaml')
+
+
+def build_map(*args, timeout=120):
+    return subprocess.run([executable_path('build_map'), *map(str, args), '--quiet'],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope='module')
+def moving_bag(tmp_path_factory):
+    frames, centre = sphere_session(seconds=6.0, surface_points=100, moving=True)
+    return write_pose_bag(tmp_path_factory.mktemp('bags') / 'moving', frames), centre, frames
+
+
+def test_tracked_map_lies_on_the_sphere(moving_bag, tmp_path):
+    bag, centre, frames = moving_bag
+    result = build_map(bag, '--config', CONFIG, '--output-dir', tmp_path, '--name', 'm')
+    assert result.returncode == 0, result.stderr
+    assert f'{3 * len(frames)} of {3 * len(frames)} fingertip positions' in result.stdout
+    assert 'x real time' in result.stdout
+    cells = read_ply(tmp_path / 'm.ply')
+    xyz = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(float)
+    assert len(xyz) >= 40
+    assert np.abs(np.linalg.norm(xyz - centre, axis=1) - 0.04).max() <= 0.005 * math.sqrt(3) / 2 + 1e-6
+    grid, metadata = load_npz(tmp_path / 'm.npz')
+    assert metadata['extra']['occupied_threshold'] == 0.8
+    assert np.linalg.norm(np.array(metadata['extra']['object_centric']['centre_of_mass'])
+                          - centre) < 0.01
+
+
+def test_without_registration_the_moving_object_smears(moving_bag, tmp_path):
+    """Static mode on a moving object: the same spots land in many more cells."""
+    bag, _, _ = moving_bag
+    tracked = build_map(bag, '--config', CONFIG, '--output-dir', tmp_path, '--name', 't')
+    static = build_map(bag, '--config', STATIC_CONFIG, '--output-dir', tmp_path, '--name', 's')
+    assert tracked.returncode == 0 and static.returncode == 0, static.stderr
+    touched = {name: int(load_npz(tmp_path / f'{name}.npz')[0].touched_mask().sum())
+               for name in ('t', 's')}
+    assert touched['s'] > 5 * touched['t']
+
+
+def test_sqlite3_bag_gives_the_same_map_as_mcap(tmp_path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    from inhand_mapping.pose_cdr import encode_pose_stamped
+    frames, _ = sphere_session(seconds=2.0, surface_points=50, moving=True, seed=3)
+    mcap = write_pose_bag(tmp_path / 'as_mcap', frames)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(tmp_path / 'as_sqlite', version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
+        connections = {n: w.add_connection(f'/polhemus/{n}/pose', 'geometry_msgs/msg/PoseStamped',
+                                           typestore=store) for n in ('object', *FINGERS)}
+        for t, frame in frames:
+            ns = int(round(t * 1e9))
+            for name, (p, q) in frame.items():
+                w.write(connections[name], ns, encode_pose_stamped(
+                    ns // 10**9, ns % 10**9, 'polhemus_source', (*p, *q)))
+    for bag, name in ((mcap, 'a'), (tmp_path / 'as_sqlite', 'b')):
+        result = build_map(bag, '--config', CONFIG, '--output-dir', tmp_path, '--name', name)
+        assert result.returncode == 0, result.stderr
+    a, _ = load_npz(tmp_path / 'a.npz')
+    b, _ = load_npz(tmp_path / 'b.npz')
+    assert a.counts.integrated == 3 * len(frames)
+    assert np.array_equal(a.log_odds, b.log_odds)
+
+
+def test_truncated_bag_is_reported_and_what_was_read_is_mapped(moving_bag, tmp_path):
+    bag, _, frames = moving_bag
+    (mcap,) = bag.glob('*.mcap')
+    data = mcap.read_bytes()
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(data[:int(len(data) * 0.7)])
+    result = build_map(cut, '--config', CONFIG, '--output-dir', tmp_path, '--name', 'cut')
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert 'truncated or damaged' in result.stderr
+    assert 'up to byte' in result.stderr and f'of {len(data[:int(len(data) * 0.7)])}' in result.stderr
+    read = int(result.stdout.split(' messages,')[0].split()[-1])
+    assert 0 < read < 4 * len(frames)
+    grid, metadata = load_npz(tmp_path / 'cut.npz')
+    assert grid.counts.integrated > 0 and metadata['extra']['truncated']
+
+
+@pytest.mark.parametrize('content, expected', [
+    (b'not a bag at all', 'cannot open as a rosbag2 bag'),
+    (b'', 'cannot open as a rosbag2 bag'),
+])
+def test_foreign_files_are_refused(tmp_path, content, expected):
+    path = tmp_path / 'thing.mcap'
+    path.write_bytes(content)
+    result = build_map(path, '--output-dir', tmp_path)
+    assert result.returncode == 2
+    assert expected in result.stderr
+    assert not (tmp_path / 'thing.npz').exists()
+
+
+def test_bag_without_the_driver_topics_is_refused(tmp_path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    String = store.types['std_msgs/msg/String']
+    with Writer(tmp_path / 'chatter', version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection('/chatter', String.__msgtype__, typestore=store)
+        writer.write(connection, 1, store.serialize_cdr(String(data='hi'), String.__msgtype__))
+    result = build_map(tmp_path / 'chatter', '--config', CONFIG, '--output-dir', tmp_path)
+    assert result.returncode == 2
+    assert 'no polhemus/index/pose' in result.stderr and "it has ['chatter']" in result.stderr
+
+
+def test_bad_override_is_refused_with_its_name(moving_bag, tmp_path):
+    bag, _, _ = moving_bag
+    result = build_map(bag, '--set', 'sensor_sigma=-1', '--output-dir', tmp_path)
+    assert result.returncode == 2
+    assert "parameter 'sensor_sigma' = -1.0 is refused" in result.stderr
+    result = build_map(bag, '--set', 'no_such=1', '--output-dir', tmp_path)
+    assert result.returncode == 2 and "unknown parameter 'no_such'" in result.stderr
