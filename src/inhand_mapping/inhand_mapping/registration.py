@@ -1,0 +1,402 @@
+"""Registration: fingertip positions re-expressed in the object (map) frame.
+
+The paper's eq. (1), done properly. The tracker reports the object sensor at
+``(R_o(t), t_o(t))`` and a fingertip at ``p(t)``, all in the tracker source frame. For a
+rigid object the point touched, in the object sensor's own frame, is::
+
+    p_obj = R_o(t)^T (p(t) - t_o(t))
+
+That frame moves with the object, so it is the same frame at every time; the map frame
+``object`` is defined as the sensor's frame at its first pose, which is also where the map
+sits in the tracker frame (:attr:`Registrar.first_object_pose`), so anything measured in the
+tracker frame before the exploration (camera texture, for one) can be brought into the map.
+
+In ``static`` mode there is no object sensor: the object is fixed and the map frame is the
+tracker frame, so points pass through unchanged (invalid ones are still rejected).
+
+Pairing a fingertip with an object pose
+---------------------------------------
+* Same stamp: the driver gives every station of one tracker frame the same stamp, so a
+  fingertip stamped like an object pose uses that pose exactly. Stamps are compared exactly;
+  they are built the same way from the same integer stamps.
+* Between two object poses: the object pose is interpolated (position linearly, orientation
+  by slerp), but only when the two bracketing poses are at most ``max_gap`` apart. Across a
+  longer gap (lost frames, sensor out of range) nothing is known about the motion, so the
+  fingertip is dropped (``dropped_gap``).
+* Later than the newest object pose: it waits in the buffer for a later object pose and is
+  never extrapolated. Topics are delivered independently, so a fingertip often arrives
+  before the object pose of its own tracker frame.
+* Earlier than the first object pose ever received: dropped (``dropped_before_object``).
+
+Bounded memory
+--------------
+Object poses arrive in time order; a duplicate or older one is ignored
+(``object_out_of_order``). Only the object poses that can still be needed are kept: those
+from ``max_pending`` seconds before the newest one (fingertips may arrive that late and still
+be registered), and further back only as far as the oldest buffered fingertip. A fingertip
+that is still waiting while the newest fingertip is more than ``max_pending`` seconds newer
+has been waiting for an object stream that stalled: it is dropped (``dropped_gap``, or
+``dropped_before_object`` while no object pose has arrived at all), so an unplugged object
+sensor cannot make the buffer grow without end.
+
+Every fingertip received ends up in exactly one counter::
+
+    received == registered + dropped_gap + dropped_before_object + dropped_invalid + pending
+
+All the work is vectorised with numpy (``searchsorted`` over the object time array): no
+Python loop per point.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from inhand_common.rotations import quaternion_to_matrix, slerp
+
+__all__ = ['MODES', 'RegistrationStats', 'Registrar']
+
+MODES = ('tracked', 'static')
+
+# Stamps per block when computing object poses (cache-sized temporaries).
+_BLOCK = 16384
+
+_IDENTITY_POSE = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+
+
+@dataclass
+class RegistrationStats:
+    """Counters. The fingertip ones add up to ``received`` (see the module docstring)."""
+
+    received: int = 0  # fingertip positions given
+    registered: int = 0  # returned as registered points
+    dropped_gap: int = 0  # object-pose gap around t longer than max_gap, or history gone
+    dropped_before_object: int = 0  # earlier than the first object pose
+    dropped_invalid: int = 0  # NaN/inf time or position
+    pending: int = 0  # waiting for an object pose at or after their time (set on each call)
+    object_poses: int = 0  # object poses accepted
+    object_out_of_order: int = 0  # object poses ignored: not newer than the newest one
+    object_invalid: int = 0  # object poses ignored: NaN/inf or zero-norm quaternion
+
+
+def _empty_result() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return np.empty((0, 3)), np.empty(0), np.empty(0, dtype=np.int32)
+
+
+class Registrar:
+    """Pairs fingertip positions with object poses and returns them in the map frame.
+
+    Feed it with :meth:`add_object_pose` and :meth:`add_fingertips` in any interleaving
+    that keeps the two streams within ``max_pending`` seconds of each other (fingertips
+    may also be given before all the object poses they need); :meth:`drain` returns what
+    can be registered so far, :meth:`finish` ends the input.
+    Times are float seconds (``sec + nanosec * 1e-9``); at epoch scale a float64 resolves
+    about 0.24 microseconds, far below the tracker period.
+    """
+
+    def __init__(self, mode: str = 'tracked', max_gap: float = 0.05,
+                 max_pending: float = 1.0):
+        if mode not in MODES:
+            raise ValueError(f"registration mode must be one of {MODES}, got {mode!r}")
+        for name, value in (('max_gap', max_gap), ('max_pending', max_pending)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name} must be a positive number of seconds, got {value!r}')
+        self.mode = mode
+        self.max_gap = float(max_gap)
+        self.max_pending = float(max_pending)
+        self.stats = RegistrationStats()
+        # Object-pose history: growable arrays, the first _n_obj rows in use, time-ordered.
+        capacity = 1024
+        self._obj_t = np.empty(capacity)
+        self._obj_p = np.empty((capacity, 3))
+        self._obj_q = np.empty((capacity, 4))
+        self._n_obj = 0
+        self._first_pose: tuple[np.ndarray, np.ndarray] | None = None
+        self._first_t = math.nan
+        self._latest_t = -math.inf
+        # Fingertips waiting: chunks appended by add_fingertips, merged (time-sorted) by drain.
+        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._n_pending = 0
+        self._pending_min_t = math.inf
+        self._newest_fingertip_t = -math.inf
+
+    # ------------------------------------------------------------------ inputs
+    @property
+    def first_object_pose(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The map frame's pose in the tracker frame: (position (3,), quaternion xyzw (4,)).
+
+        Tracked mode: the object sensor's first pose, or None before it arrives. Static mode:
+        the identity (the map frame is the tracker frame).
+        """
+        if self.mode == 'static':
+            return _IDENTITY_POSE[0].copy(), _IDENTITY_POSE[1].copy()
+        if self._first_pose is None:
+            return None
+        return self._first_pose[0].copy(), self._first_pose[1].copy()
+
+    def add_object_pose(self, t: float, position, quaternion_xyzw) -> None:
+        """Record the object sensor's pose at time ``t`` (seconds). Ignored in static mode.
+
+        Poses must come in time order; a pose not newer than the newest one is ignored and
+        counted (``object_out_of_order``), as is a non-finite one (``object_invalid``).
+        """
+        if self.mode == 'static':
+            return
+        t = float(t)
+        p = np.asarray(position, dtype=float).reshape(3)
+        q = np.asarray(quaternion_xyzw, dtype=float).reshape(4)
+        norm = math.sqrt(float(q @ q))
+        if not (math.isfinite(t) and np.isfinite(p).all() and math.isfinite(norm)
+                and norm > 1e-9):
+            self.stats.object_invalid += 1
+            return
+        if t <= self._latest_t:
+            self.stats.object_out_of_order += 1
+            return
+        q = q / norm
+        if self._n_obj == len(self._obj_t):
+            self._make_room()
+        n = self._n_obj
+        self._obj_t[n] = t
+        self._obj_p[n] = p
+        self._obj_q[n] = q
+        self._n_obj = n + 1
+        self._latest_t = t
+        self.stats.object_poses += 1
+        if self._first_pose is None:
+            self._first_pose = (p.copy(), q.copy())
+            self._first_t = t
+
+    def add_fingertips(self, t, positions, fingers) -> None:
+        """Buffer fingertip positions: ``t`` (N,) seconds, ``positions`` (N, 3), ``fingers`` (N,).
+
+        A scalar ``t`` or ``fingers`` applies to every row; one position may be given as (3,).
+        Rows with a non-finite time or position are dropped here (``dropped_invalid``).
+        """
+        pos = np.asarray(positions, dtype=float)
+        if pos.ndim == 1:
+            pos = pos.reshape(1, -1)
+        if pos.ndim != 2 or pos.shape[1] != 3:
+            raise ValueError(f'positions must have shape (N, 3), got {np.shape(positions)}')
+        n = pos.shape[0]
+        times = np.broadcast_to(np.asarray(t, dtype=float), (n,))
+        fing = np.broadcast_to(np.asarray(fingers), (n,))
+        if fing.size and not np.issubdtype(fing.dtype, np.integer):
+            raise ValueError(f'fingers must be integers (station numbers), got {fing.dtype}')
+        fing = fing.astype(np.int32)
+        self.stats.received += n
+        if n == 0:
+            return
+        valid = np.isfinite(times) & np.isfinite(pos).all(axis=1)
+        if not valid.all():
+            self.stats.dropped_invalid += int(n - np.count_nonzero(valid))
+            times, pos, fing = times[valid], pos[valid], fing[valid]
+            if times.size == 0:
+                self._set_pending()
+                return
+        else:
+            times = times.copy()  # decouple from the caller's (possibly broadcast) arrays
+            pos = pos.copy()
+        self._chunks.append((times, pos, fing))
+        self._n_pending += times.size
+        self._pending_min_t = min(self._pending_min_t, float(times.min()))
+        self._newest_fingertip_t = max(self._newest_fingertip_t, float(times.max()))
+        self._set_pending()
+
+    # ------------------------------------------------------------------ outputs
+    def drain(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Registered (points (M, 3) in the map frame, times (M,), fingers (M,)), time-ordered.
+
+        Returns every buffered fingertip that can be resolved now, drops those that never
+        can, and keeps the ones still waiting for an object pose.
+        """
+        return self._resolve(final=False)
+
+    def finish(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """End of input: register what can be, drop the rest (nothing is extrapolated)."""
+        return self._resolve(final=True)
+
+    # ------------------------------------------------------------------ internals
+    def _set_pending(self) -> None:
+        self.stats.pending = self._n_pending
+
+    def _take_pending(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        chunks, self._chunks = self._chunks, []
+        self._n_pending = 0
+        if not chunks:
+            return np.empty(0), np.empty((0, 3)), np.empty(0, dtype=np.int32)
+        if len(chunks) == 1:
+            t, p, f = chunks[0]
+        else:
+            t = np.concatenate([c[0] for c in chunks])
+            p = np.concatenate([c[1] for c in chunks])
+            f = np.concatenate([c[2] for c in chunks])
+        if t.size > 1 and np.any(t[1:] < t[:-1]):
+            order = np.argsort(t, kind='stable')
+            t, p, f = t[order], p[order], f[order]
+        return t, p, f
+
+    def _keep_waiting(self, t, p, f) -> None:
+        self._n_pending = t.size
+        if t.size:
+            self._chunks = [(t, p, f)]
+            self._pending_min_t = float(t[0])
+        else:
+            self._pending_min_t = math.inf
+
+    def _resolve(self, final: bool):
+        t, p, f = self._take_pending()
+        if t.size == 0:
+            self._keep_waiting(t, p, f)
+            self._set_pending()
+            self._trim_history()
+            return _empty_result()
+
+        if self.mode == 'static':
+            self.stats.registered += t.size
+            self._keep_waiting(t[:0], p[:0], f[:0])
+            self._set_pending()
+            return p, t, f
+
+        n_obj = self._n_obj
+        if n_obj == 0:
+            # No object pose yet: everything waits (or, at the end, was before the object).
+            if final:
+                waiting = np.zeros(t.size, dtype=bool)
+            else:
+                waiting = t >= self._newest_fingertip_t - self.max_pending
+            self.stats.dropped_before_object += int(t.size - np.count_nonzero(waiting))
+            self._keep_waiting(t[waiting], p[waiting], f[waiting])
+            self._set_pending()
+            return _empty_result()
+
+        # Everything is decided per distinct stamp (all stations of a tracker frame share
+        # one, so there are several points per stamp), then applied to the points.
+        n = t.size
+        new_stamp = np.empty(n, dtype=bool)
+        new_stamp[0] = True
+        np.not_equal(t[1:], t[:-1], out=new_stamp[1:])
+        stamp_of = np.cumsum(new_stamp) - 1  # index of each point's stamp in ut
+        ut = t[new_stamp]
+
+        obj_t = self._obj_t[:n_obj]
+        j = np.searchsorted(obj_t, ut, side='left')  # first object pose at or after the stamp
+        later = j == n_obj  # newer than the newest object pose: wait
+        jc = np.minimum(j, n_obj - 1)
+        t_hi = obj_t[jc]
+        exact = t_hi == ut  # never true for `later` ones (t_hi < ut there)
+        lo = np.maximum(j - 1, 0)
+        gap_ok = ~exact & ~later & (j > 0) & (t_hi - obj_t[lo] <= self.max_gap)
+        resolved = exact | gap_ok
+        before_first = ut < self._first_t
+        # Left: before the first pose ever, before the history kept, or across a long gap.
+        gap = ~later & ~resolved & ~before_first
+        counts = np.diff(np.append(np.flatnonzero(new_stamp), n))  # points per stamp
+        self.stats.dropped_before_object += int(counts[before_first].sum())
+        self.stats.dropped_gap += int(counts[gap].sum())
+
+        # The object pose at each resolvable stamp: exact, or interpolated (lerp + slerp).
+        ures = np.flatnonzero(resolved)
+        if ures.size:
+            rot, pos = self._object_poses_at(ut[ures], jc[ures], gap_ok[ures])
+            # Row vectors: (R^T d)^T = d^T R.
+            per_stamp = n // ut.size
+            if ures.size == ut.size and per_stamp * ut.size == n and np.all(counts == per_stamp):
+                # The usual case: every stamp resolves and has the same number of stations,
+                # so the points reshape to (stamps, stations, 3) and nothing is gathered.
+                d = p.reshape(ut.size, per_stamp, 3) - pos[:, None, :]
+                points = (d @ rot).reshape(n, 3)
+                take = slice(None)
+            else:
+                slot = np.full(ut.size, -1)
+                slot[ures] = np.arange(ures.size)
+                which = slot[stamp_of]
+                take = np.flatnonzero(which >= 0)
+                which = which[take]
+                d = p[take] - pos[which]
+                points = (d[:, None, :] @ rot[which])[:, 0, :]
+            out = (points, t[take], f[take])
+            self.stats.registered += points.shape[0]
+        else:
+            out = _empty_result()
+
+        # Still waiting: later than the newest object pose, unless the input has ended or
+        # the object stream has stalled for longer than max_pending.
+        if final:
+            self.stats.dropped_gap += int(counts[later].sum())
+            later[:] = False
+        else:
+            stalled = later & (ut < self._newest_fingertip_t - self.max_pending)
+            self.stats.dropped_gap += int(counts[stalled].sum())
+            later &= ~stalled
+        wait = later[stamp_of]
+        self._keep_waiting(t[wait], p[wait], f[wait])
+        self._set_pending()
+        self._trim_history()
+        return out
+
+    def _object_poses_at(self, times, k, interpolate):
+        """Rotation matrices (U, 3, 3) and positions (U, 3) of the object at ``times``.
+
+        ``k`` is the object pose at or after each time; where ``interpolate`` is False it is
+        exactly at that time and used as is, elsewhere the pose is interpolated between
+        ``k - 1`` and ``k``. Done in blocks so that the temporaries of slerp and the matrix
+        conversion stay in cache: about twice as fast as one pass over a million stamps.
+        """
+        obj_t, obj_p, obj_q = self._obj_t, self._obj_p, self._obj_q
+        rot = np.empty((times.size, 3, 3))
+        pos = np.empty((times.size, 3))
+        for start in range(0, times.size, _BLOCK):
+            block = slice(start, start + _BLOCK)
+            kb = k[block]
+            q = obj_q[kb]
+            pos[block] = obj_p[kb]
+            between = np.flatnonzero(interpolate[block])
+            if between.size:
+                k1 = kb[between]
+                k0 = k1 - 1
+                t0 = obj_t[k0]
+                frac = (times[block][between] - t0) / (obj_t[k1] - t0)
+                q[between] = slerp(obj_q[k0], obj_q[k1], frac)
+                p0 = obj_p[k0]
+                pos[start + between] = p0 + frac[:, None] * (obj_p[k1] - p0)
+            rot[block] = quaternion_to_matrix(q)
+        return rot, pos
+
+    def _keep_from(self) -> float:
+        """Oldest object time that can still be needed (see the module docstring)."""
+        return min(self._latest_t - self.max_pending, self._pending_min_t)
+
+    def _trim_history(self) -> None:
+        """Forget object poses no fingertip can need, keeping one bracketing the boundary."""
+        n = self._n_obj
+        if n < 2:
+            return
+        start = int(np.searchsorted(self._obj_t[:n], self._keep_from(), side='right')) - 1
+        if start <= 0:
+            return
+        keep = n - start
+        self._obj_t[:keep] = self._obj_t[start:n]
+        self._obj_p[:keep] = self._obj_p[start:n]
+        self._obj_q[:keep] = self._obj_q[start:n]
+        self._n_obj = keep
+        # Shrink a buffer that grew for a burst, so a long run does not hold it forever.
+        capacity = len(self._obj_t)
+        if capacity > 4096 and keep < capacity // 4:
+            self._resize(max(1024, 2 * keep))
+
+    def _make_room(self) -> None:
+        self._trim_history()
+        if self._n_obj > 3 * len(self._obj_t) // 4:
+            self._resize(2 * len(self._obj_t))
+
+    def _resize(self, capacity: int) -> None:
+        n = self._n_obj
+        for name, shape in (('_obj_t', (capacity,)), ('_obj_p', (capacity, 3)),
+                            ('_obj_q', (capacity, 4))):
+            old = getattr(self, name)
+            new = np.empty(shape)
+            new[:n] = old[:n]
+            setattr(self, name, new)
