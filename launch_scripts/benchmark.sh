@@ -2,9 +2,11 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|all] [benchmark options]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|all] [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
+#   mapping            occupancy integration vs OctoMap + publishing a full 70^3 map cloud
+#                      (test/benchmarks/bench_mapping.py: --quick, --points N, --runs R)
 #   all                every benchmark in turn, each with the same options
 # Examples:
 #   bash launch_scripts/benchmark.sh --seconds 20
@@ -15,8 +17,9 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 # name -> script under test/benchmarks/; add further benchmarks here.
 declare -A BENCHMARKS=(
   [liberty]=bench_liberty.py
+  [mapping]=bench_mapping.py
 )
-ORDER=(liberty)
+ORDER=(liberty mapping)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then
