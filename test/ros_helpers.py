@@ -214,3 +214,50 @@ def call_trigger(service: str, timeout: float = 20.0):
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+class CloudCounter:
+    """Counts the points arriving on a PointCloud2 topic (in a background executor)."""
+
+    def __init__(self, topic: str):
+        from sensor_msgs.msg import PointCloud2
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = Node('test_cloud_counter', context=self.context)
+        self.points = 0
+        self.node.create_subscription(
+            PointCloud2, topic, self._add,
+            QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+        self.executor = EventsExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stopping = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _add(self, msg):
+        self.points += msg.width * msg.height
+
+    def wait_ready(self, topic: str, timeout: float = 20.0) -> None:
+        """Until a publisher of ``topic`` is matched, so no early message is missed."""
+        deadline = time.monotonic() + timeout
+        while self.node.count_publishers(topic) == 0:
+            assert time.monotonic() < deadline, f'no publisher on {topic}'
+            time.sleep(0.05)
+        time.sleep(0.3)  # discovery: let the reliable reader/writer match settle
+
+    def _spin(self):
+        while not self._stopping.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def wait_for(self, count: int, timeout: float = 20.0) -> None:
+        deadline = time.monotonic() + timeout
+        while self.points < count and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert self.points >= count, f'{self.points} of {count} points arrived'
+
+    def close(self):
+        self._stopping.set()
+        self.thread.join(5.0)
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)

@@ -21,7 +21,8 @@ from sensor_msgs.msg import PointCloud2
 from inhand_common.point_cloud import from_point_cloud2
 from inhand_mapping.map_io import load_npz, read_ply
 from pose_sessions import sphere_session, write_pose_bag
-from ros_helpers import WORKSPACE, PosePublisher, call_trigger, executable_path, running
+from ros_helpers import (WORKSPACE, CloudCounter, PosePublisher, call_trigger, executable_path,
+                         running)
 
 pytestmark = pytest.mark.dds
 
@@ -52,6 +53,26 @@ def latest(topic: str, msg_type, timeout: float = 10.0):
         rclpy.try_shutdown(context=context)
 
 
+def feed(frames) -> None:
+    """Publish the frames as the driver would and wait until every registered point is out.
+
+    Saving flushes the last integration window; waiting first makes the node's map the
+    one of all the data, not of the part that happened to have arrived.
+    """
+    counter = CloudCounter('registration/points')
+    publisher = PosePublisher(['object', 'thumb', 'index', 'middle'])
+    try:
+        counter.wait_ready('registration/points')
+        publisher.wait_for_subscribers()
+        publisher.publish(frames, rate_factor=2.0)
+        counter.wait_for(3 * len(frames))
+    finally:
+        publisher.close()
+        counter.close()
+    import time
+    time.sleep(0.5)  # the occupancy node gets each batch when the counter does
+
+
 @pytest.fixture(scope='module')
 def session():
     return sphere_session(seconds=4.0, surface_points=120, moving=True)
@@ -64,16 +85,8 @@ def test_nodes_map_a_moving_sphere_and_match_build_map(session, tmp_path):
                       '-p', f'output_dir:={tmp_path}', '-p', 'map_name:=node_map']
     with running(['registration_node', '--ros-args', '--params-file', config]) as registration, \
             running(occupancy_args) as occupancy:
-        publisher = PosePublisher(['object', 'thumb', 'index', 'middle'])
-        try:
-            publisher.wait_for_subscribers()
-            publisher.publish(frames, rate_factor=2.0)
-        finally:
-            publisher.close()
+        feed(frames)
         object_frame = latest('registration/object_frame', PoseStamped)
-        # The registration node batches every 50 ms: give the last batch time to arrive.
-        import time
-        time.sleep(1.0)
         response = call_trigger('occupancy/save')
         assert response.success, response.message
         occupied = from_point_cloud2(latest('occupancy/occupied', PointCloud2))
@@ -113,14 +126,7 @@ def test_reset_service_clears_the_map(tmp_path):
     with running(['registration_node', '--ros-args', '--params-file', config]), \
             running(['occupancy_node', '--ros-args', '--params-file', config, '-p',
                      f'output_dir:={tmp_path}']):
-        publisher = PosePublisher(['object', 'thumb', 'index', 'middle'])
-        try:
-            publisher.wait_for_subscribers()
-            publisher.publish(frames, rate_factor=2.0)
-        finally:
-            publisher.close()
-        import time
-        time.sleep(1.0)
+        feed(frames)
         assert call_trigger('occupancy/save').success
         before, _ = load_npz(tmp_path / 'map.npz')
         assert before.hits.sum() == 3 * len(frames)
