@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.occupancy import OccupancyGrid
 
 __all__ = ['REGISTERED_DTYPE', 'MAP_CELL_DTYPE', 'pack_registered', 'unpack_registered',
-           'map_cells']
+           'CellGatherer', 'map_cells']
 
 REGISTERED_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'finger', 't'],
                              'formats': ['<f4', '<f4', '<f4', 'u1', '<f8'],
@@ -42,27 +43,34 @@ def unpack_registered(packed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     return points, np.asarray(packed['t'], dtype=np.float64), np.asarray(packed['finger'])
 
 
-def map_cells(grid: OccupancyGrid, threshold: float | None = None,
-              time_origin: float | None = None) -> np.ndarray:
-    """Touched cells (above ``threshold`` if given) in the MAP_CELL_DTYPE layout.
+class CellGatherer:
+    """Builds MAP_CELL_DTYPE arrays of a grid's touched cells, reusing one buffer.
 
-    ``time_origin`` (s) is subtracted from first-touch times; by default the earliest
-    first touch of the map, so the field reads "seconds into the exploration".
+    The returned arrays are views of that buffer: valid until the next call (copy them to
+    keep them). One compiled pass over the grid (occupancy_kernels.gather_cells).
     """
-    mask = grid.touched_mask()
-    probabilities = grid.probabilities()
-    if threshold is not None:
-        mask &= probabilities > threshold
-    ijk = np.nonzero(mask)
-    cells = np.empty(ijk[0].shape[0], dtype=MAP_CELL_DTYPE)
-    spec = grid.spec
-    for axis, name in enumerate('xyz'):
-        cells[name] = spec.origin[axis] + (ijk[axis] + 0.5) * spec.resolution
-    cells['intensity'] = probabilities[ijk]
-    cells['hits'] = grid.hits[ijk]
-    first = grid.first_touch[ijk]
-    if time_origin is None:
-        touched = grid.first_touch[np.isfinite(grid.first_touch)]
-        time_origin = float(touched.min()) if touched.size else 0.0
-    cells['first_touch'] = first - time_origin
-    return cells
+
+    def __init__(self, grid: OccupancyGrid):
+        self.grid = grid
+        self._buffer = np.empty((grid.spec.cells_per_axis ** 3, 6), dtype=np.float32)
+
+    def __call__(self, threshold: float | None = None,
+                 probabilities: np.ndarray | None = None) -> np.ndarray:
+        grid = self.grid
+        if probabilities is None:
+            probabilities = grid.probabilities()
+        count = kernels.gather_cells(
+            grid.log_odds.reshape(-1), probabilities.reshape(-1), grid.hits.reshape(-1),
+            grid.first_touch.reshape(-1), grid.prior_log_odds, grid.spec.origin,
+            grid.spec.resolution, grid.spec.cells_per_axis,
+            -1.0 if threshold is None else float(threshold), self._buffer,
+            self._buffer.view(np.uint32))
+        return self._buffer[:count].view(MAP_CELL_DTYPE).reshape(-1)
+
+
+def map_cells(grid: OccupancyGrid, threshold: float | None = None) -> np.ndarray:
+    """Touched cells (above ``threshold`` if given) in the MAP_CELL_DTYPE layout (a copy).
+
+    ``first_touch`` reads "seconds into the exploration": relative to the map's earliest.
+    """
+    return CellGatherer(grid)(threshold).copy()

@@ -47,11 +47,15 @@ def save_npz(grid: OccupancyGrid, path, frame_id: str = 'object', extra: dict | 
 def load_npz(path) -> tuple[OccupancyGrid, dict]:
     """The grid saved by :func:`save_npz` and its metadata; ValueError if it is not one."""
     try:
-        with np.load(path, allow_pickle=False) as data:
+        data = np.load(path, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise ValueError('a single array, not an NPZ archive')
+        with data:
             metadata = json.loads(bytes(data['metadata']).decode())
             arrays = {k: data[k] for k in ('log_odds', 'hits', 'first_touch')}
-    except (OSError, KeyError, ValueError, json.JSONDecodeError) as error:
-        raise ValueError(f'{path}: not a map saved by this software ({error})') from None
+    except Exception as error:  # numpy/zipfile raise many kinds for a foreign file
+        raise ValueError(f'{path}: not a map saved by this software '
+                         f'({type(error).__name__}: {error})') from None
     if metadata.get('format_version') != FORMAT_VERSION:
         raise ValueError(f'{path}: map format {metadata.get("format_version")}, '
                          f'this software reads {FORMAT_VERSION}')

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inhand_mapping.clouds import map_cells
+from inhand_mapping.clouds import CellGatherer
 from inhand_mapping.map_io import save_npz, save_ply
 from inhand_mapping.object_frame import ObjectFrame, object_frame
 from inhand_mapping.occupancy import OccupancyGrid
@@ -21,10 +21,15 @@ class MapProducts:
     def __init__(self, grid: OccupancyGrid, threshold: float):
         self.grid = grid
         self.threshold = threshold
+        self._gather = CellGatherer(grid)
 
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
-        """(touched cells, occupied cells) in the clouds.MAP_CELL_DTYPE layout."""
-        touched = map_cells(self.grid)
+        """(touched cells, occupied cells) in the clouds.MAP_CELL_DTYPE layout.
+
+        The touched array is a view of a buffer reused by the next call; the occupied one
+        is a copy.
+        """
+        touched = self._gather()
         return touched, touched[touched['intensity'] > self.threshold]
 
     def object_frame(self) -> ObjectFrame | None:

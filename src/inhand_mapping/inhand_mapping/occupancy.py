@@ -60,8 +60,11 @@ class GridSpec:
     centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
+        if not (self.resolution > 0 and self.size > 0):
+            raise ValueError(f'workspace size {self.size} m and resolution {self.resolution} m '
+                             'must be positive to make a whole number of cells')
         cells = self.size / self.resolution
-        if self.resolution <= 0 or self.size <= 0 or abs(cells - round(cells)) > 1e-6:
+        if abs(cells - round(cells)) > 1e-6:
             raise ValueError(f'workspace size {self.size} m is not a whole number of '
                              f'{self.resolution} m cells')
 
@@ -207,13 +210,18 @@ class WindowedIntegrator:
 
     Points are held until a point of a later window arrives (or ``flush``), then each
     complete window is integrated as one batch, in time order. The node (points in
-    messages) and ``build_map`` (points from a bag) therefore build the same map.
+    messages) and ``build_map`` (points from a bag) therefore build the same map. This
+    holds for streams whose stamps never go back past a window already integrated, which
+    is what the registrar emits; a point that does is integrated with its own batch and
+    counted in ``late_points``.
     """
 
     grid: OccupancyGrid
     window: float = 0.1
+    late_points: int = 0
     _points: list = field(default_factory=list)
     _times: list = field(default_factory=list)
+    _integrated_until: float = -math.inf  # windows before this one are done
 
     def add(self, points, times) -> int:
         """Queue points; integrates every window that is now complete. Returns how many
@@ -238,8 +246,9 @@ class WindowedIntegrator:
         return self._integrate_windows(all_points[ready], all_times[ready])
 
     def clear(self) -> None:
-        """Forget queued points (the map is being reset)."""
+        """Forget queued points and window history (the map is being reset)."""
         self._points, self._times = [], []
+        self._integrated_until = -math.inf
 
     def flush(self) -> int:
         """Integrate whatever is queued (end of a bag, or before saving/publishing)."""
@@ -262,7 +271,11 @@ class WindowedIntegrator:
             counts = self.grid.integrate(points[~valid], times[~valid])
             done += counts.invalid
             points, times = points[valid], times[valid]
+        if len(times) == 0:
+            return done
         window_ids = np.floor(times / self.window)
+        self.late_points += int(np.count_nonzero(window_ids < self._integrated_until))
+        self._integrated_until = max(self._integrated_until, float(window_ids.max()) + 1.0)
         order = np.argsort(window_ids, kind='stable')
         points, times, window_ids = points[order], times[order], window_ids[order]
         boundaries = np.flatnonzero(np.diff(window_ids) != 0) + 1

@@ -33,14 +33,16 @@ def accumulate(points, times, has_times, origin, inv_res, n, count, sum_e, sum_e
     invalid = 0
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(points.shape[0]):
-        x = (points[i, 0] - ox) * inv_res
-        y = (points[i, 1] - oy) * inv_res
-        z = (points[i, 2] - oz) * inv_res
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         t = times[i] if has_times else 0.0
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)
                 and math.isfinite(t)):
             invalid += 1
             continue
+        # A finite point far away may scale to inf: it is outside, not invalid.
+        x = (px - ox) * inv_res
+        y = (py - oy) * inv_res
+        z = (pz - oz) * inv_res
         if x < 0.0 or y < 0.0 or z < 0.0 or x >= n or y >= n or z >= n:
             outside += 1
             continue
@@ -107,3 +109,39 @@ def apply(touched, n_touched, count, sum_e, sum_e2, first, log_odds, hits, first
         sum_e[2, c] = 0.0
         sum_e2[c] = 0.0
         first[c] = np.inf
+
+
+@numba.njit(cache=True, nogil=True)
+def gather_cells(log_odds, probabilities, hits, first_touch, prior, origin, res, n,
+                 threshold, out, out_u32):
+    """Touched cells (above ``threshold`` when it is >= 0) into ``out`` (rows of 6 float32:
+    x y z intensity hits first_touch; ``out_u32`` is the same buffer viewed as uint32 so the
+    hit count is stored as an integer). Returns the row count.
+
+    One pass instead of the ~15 numpy passes of masks, index arrays and field copies: it
+    is what keeps building the cloud of a full 70^3 map within a couple of milliseconds.
+    First-touch times are relative to the earliest one in the map.
+    """
+    time_origin = np.inf
+    for c in range(n * n * n):
+        if first_touch[c] < time_origin:
+            time_origin = first_touch[c]
+    if not math.isfinite(time_origin):
+        time_origin = 0.0
+    m = 0
+    c = 0
+    for ix in range(n):
+        x = origin[0] + (ix + 0.5) * res
+        for iy in range(n):
+            y = origin[1] + (iy + 0.5) * res
+            for iz in range(n):
+                if (log_odds[c] != prior or hits[c] > 0) and probabilities[c] > threshold:
+                    out[m, 0] = x
+                    out[m, 1] = y
+                    out[m, 2] = origin[2] + (iz + 0.5) * res
+                    out[m, 3] = probabilities[c]
+                    out_u32[m, 4] = hits[c]
+                    out[m, 5] = first_touch[c] - time_origin
+                    m += 1
+                c += 1
+    return m

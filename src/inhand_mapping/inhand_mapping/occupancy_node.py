@@ -27,7 +27,7 @@ from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
 from inhand_common.node_runner import run_node
-from inhand_common.point_cloud import from_point_cloud2, to_point_cloud2
+from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
 from inhand_common.ros_parameters import declare_parameters
 from inhand_mapping.clouds import unpack_registered
 from inhand_mapping.map_products import MapProducts, save_map
@@ -76,8 +76,10 @@ class OccupancyNode(Node):
         self._changed = False
         stamp = self._latest_stamp or self.get_clock().now().to_msg()
         touched, occupied = self.products.cells()
-        self._cloud.publish(to_point_cloud2(touched, MAP_FRAME, stamp))
-        self._occupied.publish(to_point_cloud2(occupied, MAP_FRAME, stamp))
+        # Serialized here and published as bytes: a full map is 8 MB (see point_cloud.py).
+        self._cloud.publish(serialize_point_cloud2(touched, MAP_FRAME, stamp.sec, stamp.nanosec))
+        self._occupied.publish(serialize_point_cloud2(occupied, MAP_FRAME, stamp.sec,
+                                                      stamp.nanosec))
         frame = self.products.object_frame()
         if frame is not None:
             msg = PointStamped()
@@ -117,7 +119,8 @@ class OccupancyNode(Node):
         counts = self.grid.counts
         self.get_logger().info(
             f'stopped: {counts.integrated} points integrated, {counts.outside} outside the '
-            f'workspace, {counts.invalid} invalid, {self.integrator.pending} not yet integrated')
+            f'workspace, {counts.invalid} invalid, {self.integrator.late_points} late (stamped in '
+            f'a window already integrated), {self.integrator.pending} not yet integrated')
 
 
 def main(args=None) -> int:

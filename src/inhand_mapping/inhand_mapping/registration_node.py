@@ -22,7 +22,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from inhand_common.node_runner import run_node
-from inhand_common.point_cloud import to_point_cloud2
+from inhand_common.point_cloud import serialize_point_cloud2
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
 from inhand_mapping.clouds import pack_registered
@@ -88,7 +88,8 @@ class RegistrationNode(Node):
         if len(points) == 0:
             return
         cloud = pack_registered(points, times, fingers)
-        self._points.publish(to_point_cloud2(cloud, MAP_FRAME, stamp_from_seconds(times[-1])))
+        stamp = stamp_from_seconds(times[-1])
+        self._points.publish(serialize_point_cloud2(cloud, MAP_FRAME, stamp.sec, stamp.nanosec))
 
     def close(self) -> None:
         stats = self.registrar.stats
