@@ -73,24 +73,20 @@ def running(args: list[str]):
                 process.interrupt()
 
 
-class TopicListener:
-    """Subscribes to the driver's pose topics and diagnostics in a background executor."""
+class BackgroundNode:
+    """A node of the test process in a context of its own, spun by a background thread."""
 
-    def __init__(self, names=('thumb', 'index', 'middle', 'object')):
+    def __init__(self, name: str):
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
-        self.node = Node('test_listener', context=self.context)
+        self.node = Node(name, context=self.context)
         self.lock = threading.Lock()
-        self.poses: dict[str, list[PoseStamped]] = defaultdict(list)
-        self.diagnostics: list[DiagnosticArray] = []
-        qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
-        for name in names:
-            self.node.create_subscription(PoseStamped, f'polhemus/{name}/pose',
-                                          lambda msg, name=name: self._add(name, msg), qos)
-        self.node.create_subscription(DiagnosticArray, 'diagnostics', self._add_diag, 10)
         self.executor = EventsExecutor(context=self.context)
-        self.executor.add_node(self.node)
         self._stopping = threading.Event()
+        self.thread = None
+
+    def start(self) -> None:
+        self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
 
@@ -99,6 +95,29 @@ class TopicListener:
         # runs never returns, so the thread stops itself and the executor is shut after.
         while not self._stopping.is_set():
             self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self):
+        self._stopping.set()
+        if self.thread is not None:
+            self.thread.join(5.0)
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+class TopicListener(BackgroundNode):
+    """Subscribes to the driver's pose topics and diagnostics in a background executor."""
+
+    def __init__(self, names=('thumb', 'index', 'middle', 'object')):
+        super().__init__('test_listener')
+        self.poses: dict[str, list[PoseStamped]] = defaultdict(list)
+        self.diagnostics: list[DiagnosticArray] = []
+        qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+        for name in names:
+            self.node.create_subscription(PoseStamped, f'polhemus/{name}/pose',
+                                          lambda msg, name=name: self._add(name, msg), qos)
+        self.node.create_subscription(DiagnosticArray, 'diagnostics', self._add_diag, 10)
+        self.start()
 
     def _add(self, name, msg):
         with self.lock:
@@ -131,13 +150,6 @@ class TopicListener:
                 return
             time.sleep(0.05)
         raise AssertionError(f'timed out after {timeout} s waiting for {what}')
-
-    def close(self):
-        self._stopping.set()
-        self.thread.join(5.0)
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 @contextlib.contextmanager
@@ -216,23 +228,17 @@ def call_trigger(service: str, timeout: float = 20.0):
         rclpy.try_shutdown(context=context)
 
 
-class CloudCounter:
+class CloudCounter(BackgroundNode):
     """Counts the points arriving on a PointCloud2 topic (in a background executor)."""
 
     def __init__(self, topic: str):
         from sensor_msgs.msg import PointCloud2
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = Node('test_cloud_counter', context=self.context)
+        super().__init__('test_cloud_counter')
         self.points = 0
         self.node.create_subscription(
             PointCloud2, topic, self._add,
             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
-        self.executor = EventsExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._stopping = threading.Event()
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        self.start()
 
     def _add(self, msg):
         self.points += msg.width * msg.height
@@ -245,19 +251,8 @@ class CloudCounter:
             time.sleep(0.05)
         time.sleep(0.3)  # discovery: let the reliable reader/writer match settle
 
-    def _spin(self):
-        while not self._stopping.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
-
     def wait_for(self, count: int, timeout: float = 20.0) -> None:
         deadline = time.monotonic() + timeout
         while self.points < count and time.monotonic() < deadline:
             time.sleep(0.05)
         assert self.points >= count, f'{self.points} of {count} points arrived'
-
-    def close(self):
-        self._stopping.set()
-        self.thread.join(5.0)
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
