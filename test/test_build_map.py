@@ -39,8 +39,14 @@ def test_tracked_map_lies_on_the_sphere(moving_bag, tmp_path):
     assert np.abs(np.linalg.norm(xyz - centre, axis=1) - 0.04).max() <= 0.005 * math.sqrt(3) / 2 + 1e-6
     grid, metadata = load_npz(tmp_path / 'm.npz')
     assert metadata['extra']['occupied_threshold'] == 0.8
-    assert np.linalg.norm(np.array(metadata['extra']['object_centric']['centre_of_mass'])
-                          - centre) < 0.01
+    com = np.array(metadata['extra']['object_centric']['centre_of_mass'])
+    assert np.linalg.norm(com - centre) < 0.01
+    # The same cells expressed in object_centric: their weighted mean is the origin.
+    centric = read_ply(tmp_path / 'm_object_centric.ply')
+    weights = centric['intensity'].astype(float)
+    mean = np.stack([centric[a] for a in 'xyz'], axis=1).astype(float).T @ weights / weights.sum()
+    assert np.abs(mean).max() < 1e-6
+    assert np.allclose(np.stack([centric[a] for a in 'xyz'], axis=1), xyz - com, atol=1e-6)
 
 
 def test_without_registration_the_moving_object_smears(moving_bag, tmp_path):

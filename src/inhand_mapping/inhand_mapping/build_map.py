@@ -263,8 +263,8 @@ def main(argv=None) -> int:
     grid, registrar, report = result['grid'], result['registrar'], result['report']
     threshold = occupancy_values['occupied_threshold']
     name = args.name or args.bag.name.rsplit('.', 1)[0] or 'map'
-    npz, ply = save_map(grid, args.output_dir, name, threshold, 'object',
-                        extra={'bag': str(args.bag), 'truncated': report['truncated']})
+    paths = save_map(grid, args.output_dir, name, threshold, 'object',
+                     extra={'bag': str(args.bag), 'truncated': report['truncated']})
     stats = registrar.stats
     span = ((report['bag_end'] or 0) - (report['bag_start'] or 0)) * 1e-9
     touched, occupied = MapProducts(grid, threshold).cells()
@@ -281,7 +281,7 @@ def main(argv=None) -> int:
     if frame is not None:
         print('  centre of mass (object frame): '
               + ', '.join(f'{v:+.4f}' for v in frame.centre_of_mass) + ' m')
-    print(f'  wrote {npz} and {ply}')
+    print('  wrote ' + ', '.join(str(p) for p in paths))
     if report['truncated']:
         print(f'build_map: the bag is truncated or damaged: {report["truncated"]}. The map '
               f'above is built from the {report["messages"]} messages that could be read.',

@@ -38,8 +38,10 @@ class MapProducts:
 
 
 def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
-             frame_id: str = 'object', extra: dict | None = None) -> tuple[Path, Path]:
-    """``<folder>/<name>.npz`` (the whole grid) and ``<name>.ply`` (occupied cells), atomically.
+             frame_id: str = 'object', extra: dict | None = None) -> tuple[Path, ...]:
+    """``<folder>/<name>.npz`` (the whole grid), ``<name>.ply`` (occupied cells) and, when
+    there are occupied cells, ``<name>_object_centric.ply`` (the same cells in
+    ``object_centric``: origin at the centre of mass), each written atomically.
 
     The NPZ metadata also records the threshold and the object-centric frame.
     """
@@ -52,5 +54,11 @@ def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
                                   'occupied_cells': frame.cells}
     folder = Path(folder)
     npz = save_npz(grid, folder / f'{name}.npz', frame_id=frame_id, extra=info)
-    ply = save_ply(folder / f'{name}.ply', *grid.cells(threshold=threshold), frame_id=frame_id)
-    return npz, ply
+    centres, probabilities, hits, first_touch = grid.cells(threshold=threshold)
+    ply = save_ply(folder / f'{name}.ply', centres, probabilities, hits, first_touch,
+                   frame_id=frame_id)
+    if frame is None:
+        return npz, ply
+    centric = save_ply(folder / f'{name}_object_centric.ply', frame.to_object_centric(centres),
+                       probabilities, hits, first_touch, frame_id='object_centric')
+    return npz, ply, centric
