@@ -5,7 +5,7 @@
 # Usage: bash launch_scripts/benchmark.sh [liberty|mapping|all] [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
-#   mapping            occupancy integration vs OctoMap + publishing a full 70^3 map cloud
+#   mapping            occupancy integration vs OctoMap + publishing a full 70^3 map + build_map
 #                      (test/benchmarks/bench_mapping.py: --quick, --points N, --runs R)
 #   all                every benchmark in turn, each with the same options
 # Examples:
