@@ -267,8 +267,9 @@ def main(argv=None) -> int:
                      extra={'bag': str(args.bag), 'truncated': report['truncated']})
     stats = registrar.stats
     span = ((report['bag_end'] or 0) - (report['bag_start'] or 0)) * 1e-9
-    touched, occupied = MapProducts(grid, threshold).cells()
-    frame = MapProducts(grid, threshold).object_frame()
+    products = MapProducts(grid, threshold)
+    touched, occupied = products.cells()
+    frame = products.object_frame()
     print(f'build_map: {report["messages"]} messages, {span:.1f} s of data in {elapsed:.2f} s '
           f'({span / elapsed if elapsed > 0 else float("inf"):.1f}x real time)')
     print(f'  registration ({registration_values["mode"]}): {stats.registered} of '

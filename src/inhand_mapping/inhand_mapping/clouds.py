@@ -18,7 +18,7 @@ from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.occupancy import OccupancyGrid
 
 __all__ = ['REGISTERED_DTYPE', 'MAP_CELL_DTYPE', 'pack_registered', 'unpack_registered',
-           'CellGatherer', 'map_cells']
+           'MapClouds', 'map_cells']
 
 REGISTERED_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'finger', 't'],
                              'formats': ['<f4', '<f4', '<f4', 'u1', '<f8'],
@@ -43,29 +43,29 @@ def unpack_registered(packed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     return points, np.asarray(packed['t'], dtype=np.float64), np.asarray(packed['finger'])
 
 
-class CellGatherer:
-    """Builds MAP_CELL_DTYPE arrays of a grid's touched cells, reusing one buffer.
+class MapClouds:
+    """Builds the touched and the occupied cells of a grid in the MAP_CELL_DTYPE layout.
 
-    The returned arrays are views of that buffer: valid until the next call (copy them to
-    keep them). One compiled pass over the grid (occupancy_kernels.gather_cells).
+    One compiled pass over the grid (occupancy_kernels.gather_cells) into two buffers that
+    are reused: the returned arrays are views, valid until the next call (copy them to
+    keep them).
     """
 
     def __init__(self, grid: OccupancyGrid):
         self.grid = grid
-        self._buffer = np.empty((grid.spec.cells_per_axis ** 3, 6), dtype=np.float32)
+        size = grid.spec.cells_per_axis ** 3
+        self._touched = np.empty((size, 6), dtype=np.float32)
+        self._occupied = np.empty((size, 6), dtype=np.float32)
 
-    def __call__(self, threshold: float | None = None,
-                 probabilities: np.ndarray | None = None) -> np.ndarray:
+    def __call__(self, threshold: float) -> tuple[np.ndarray, np.ndarray]:
         grid = self.grid
-        if probabilities is None:
-            probabilities = grid.probabilities()
-        count = kernels.gather_cells(
-            grid.log_odds.reshape(-1), probabilities.reshape(-1), grid.hits.reshape(-1),
+        touched, occupied = kernels.gather_cells(
+            grid.log_odds.reshape(-1), grid.probabilities().reshape(-1), grid.hits.reshape(-1),
             grid.first_touch.reshape(-1), grid.prior_log_odds, grid.spec.origin,
-            grid.spec.resolution, grid.spec.cells_per_axis,
-            -1.0 if threshold is None else float(threshold), self._buffer,
-            self._buffer.view(np.uint32))
-        return self._buffer[:count].view(MAP_CELL_DTYPE).reshape(-1)
+            grid.spec.resolution, grid.spec.cells_per_axis, float(threshold), self._touched,
+            self._touched.view(np.uint32), self._occupied, self._occupied.view(np.uint32))
+        return (self._touched[:touched].view(MAP_CELL_DTYPE).reshape(-1),
+                self._occupied[:occupied].view(MAP_CELL_DTYPE).reshape(-1))
 
 
 def map_cells(grid: OccupancyGrid, threshold: float | None = None) -> np.ndarray:
@@ -73,4 +73,5 @@ def map_cells(grid: OccupancyGrid, threshold: float | None = None) -> np.ndarray
 
     ``first_touch`` reads "seconds into the exploration": relative to the map's earliest.
     """
-    return CellGatherer(grid)(threshold).copy()
+    touched, occupied = MapClouds(grid)(-1.0 if threshold is None else threshold)
+    return (touched if threshold is None else occupied).copy()

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inhand_mapping.clouds import CellGatherer
+from inhand_mapping.clouds import MapClouds
 from inhand_mapping.map_io import save_npz, save_ply
 from inhand_mapping.object_frame import ObjectFrame, object_frame
 from inhand_mapping.occupancy import OccupancyGrid
@@ -21,16 +21,13 @@ class MapProducts:
     def __init__(self, grid: OccupancyGrid, threshold: float):
         self.grid = grid
         self.threshold = threshold
-        self._gather = CellGatherer(grid)
+        self._clouds = MapClouds(grid)
 
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
-        """(touched cells, occupied cells) in the clouds.MAP_CELL_DTYPE layout.
-
-        The touched array is a view of a buffer reused by the next call; the occupied one
-        is a copy.
-        """
-        touched = self._gather()
-        return touched, touched[touched['intensity'] > self.threshold]
+        """(touched cells, occupied cells) in the clouds.MAP_CELL_DTYPE layout: views of
+        buffers reused by the next call. "Occupied" compares the float64 probability with
+        the threshold, as OccupancyGrid.cells (the saved PLY) does."""
+        return self._clouds(self.threshold)
 
     def object_frame(self) -> ObjectFrame | None:
         centres, probabilities, _, _ = self.grid.cells(threshold=self.threshold)
