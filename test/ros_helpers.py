@@ -17,7 +17,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 WORKSPACE = pathlib.Path(__file__).resolve().parents[1]
 VENV_BIN = WORKSPACE / '.venv' / 'bin'
@@ -256,3 +256,31 @@ class CloudCounter(BackgroundNode):
         while self.points < count and time.monotonic() < deadline:
             time.sleep(0.05)
         assert self.points >= count, f'{self.points} of {count} points arrived'
+
+
+class MapWatcher(BackgroundNode):
+    """Keeps the latest ``occupancy/cloud`` (latched) and tells how many hits it holds."""
+
+    def __init__(self):
+        from sensor_msgs.msg import PointCloud2
+        super().__init__('test_map_watcher')
+        self.latest = None
+        self.node.create_subscription(
+            PointCloud2, 'occupancy/cloud', self._keep,
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.start()
+
+    def _keep(self, msg):
+        self.latest = msg
+
+    def hits(self) -> int:
+        from inhand_common.point_cloud import from_point_cloud2
+        msg = self.latest
+        return 0 if msg is None else int(from_point_cloud2(msg)['hits'].sum())
+
+    def wait_for_hits(self, count: int, timeout: float = 20.0) -> None:
+        deadline = time.monotonic() + timeout
+        while self.hits() < count and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert self.hits() >= count, f'the map holds {self.hits()} of {count} hits'

@@ -21,8 +21,8 @@ from sensor_msgs.msg import PointCloud2
 from inhand_common.point_cloud import from_point_cloud2
 from inhand_mapping.map_io import load_npz, read_ply
 from pose_sessions import sphere_session, write_pose_bag
-from ros_helpers import (WORKSPACE, CloudCounter, PosePublisher, call_trigger, executable_path,
-                         running)
+from ros_helpers import (WORKSPACE, CloudCounter, MapWatcher, PosePublisher, call_trigger,
+                         executable_path, running)
 
 pytestmark = pytest.mark.dds
 
@@ -53,24 +53,26 @@ def latest(topic: str, msg_type, timeout: float = 10.0):
         rclpy.try_shutdown(context=context)
 
 
-def feed(frames) -> None:
-    """Publish the frames as the driver would and wait until every registered point is out.
+def feed(frames, window: float = 0.1, rate: float = 240.0) -> None:
+    """Publish the frames as the driver would and wait until the occupancy node has them.
 
     Saving flushes the last integration window; waiting first makes the node's map the
-    one of all the data, not of the part that happened to have arrived.
+    one of all the data, not of the part that happened to have arrived. The node's
+    published map holds every point but those of the still open last window.
     """
     counter = CloudCounter('registration/points')
+    watcher = MapWatcher()
     publisher = PosePublisher(['object', 'thumb', 'index', 'middle'])
     try:
         counter.wait_ready('registration/points')
         publisher.wait_for_subscribers()
         publisher.publish(frames, rate_factor=2.0)
         counter.wait_for(3 * len(frames))
+        watcher.wait_for_hits(3 * len(frames) - 3 * int(math.ceil(window * rate)) - 3)
     finally:
         publisher.close()
         counter.close()
-    import time
-    time.sleep(0.5)  # the occupancy node gets each batch when the counter does
+        watcher.close()
 
 
 @pytest.fixture(scope='module')

@@ -12,6 +12,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from inhand_mapping import occupancy_kernels as kernels
@@ -59,9 +61,10 @@ class MapClouds:
 
     def __call__(self, threshold: float) -> tuple[np.ndarray, np.ndarray]:
         grid = self.grid
+        time_origin = grid.earliest_touch if math.isfinite(grid.earliest_touch) else 0.0
         touched, occupied = kernels.gather_cells(
             grid.log_odds.reshape(-1), grid.probabilities().reshape(-1), grid.hits.reshape(-1),
-            grid.first_touch.reshape(-1), grid.prior_log_odds, grid.spec.origin,
+            grid.first_touch.reshape(-1), time_origin, grid.prior_log_odds, grid.spec.origin,
             grid.spec.resolution, grid.spec.cells_per_axis, float(threshold), self._touched,
             self._touched.view(np.uint32), self._occupied, self._occupied.view(np.uint32))
         return (self._touched[:touched].view(MAP_CELL_DTYPE).reshape(-1),

@@ -70,6 +70,7 @@ def load_npz(path) -> tuple[OccupancyGrid, dict]:
     grid.log_odds[...] = arrays['log_odds']
     grid.hits[...] = arrays['hits']
     grid.first_touch[...] = arrays['first_touch']
+    grid.refresh()
     grid.counts = IntegrationCounts(**metadata['counts'])
     return grid, metadata
 

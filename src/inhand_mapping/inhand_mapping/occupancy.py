@@ -125,6 +125,8 @@ class OccupancyGrid:
         self.log_odds = np.full(spec.shape, self.prior_log_odds, dtype=np.float64)
         self.hits = np.zeros(spec.shape, dtype=np.uint32)
         self.first_touch = np.full(spec.shape, np.nan, dtype=np.float64)
+        self._probability = np.full(spec.shape, float(model.prior), dtype=np.float64)
+        self.earliest_touch = math.inf  # min of first_touch, kept up to date
         self.counts = IntegrationCounts()
         self._l_min = float(logit(model.clamp_min))
         self._l_max = float(logit(model.clamp_max))
@@ -155,10 +157,14 @@ class OccupancyGrid:
             points, times, has_times, spec.origin, 1.0 / spec.resolution, n, scratch['count'],
             scratch['sum_e'], scratch['sum_e2'], scratch['first'], touched)
         kernels.apply(touched, n_touched, scratch['count'], scratch['sum_e'], scratch['sum_e2'],
-                      scratch['first'], self.log_odds.reshape(-1), self.hits.reshape(-1),
+                      scratch['first'], self.log_odds.reshape(-1),
+                      self._probability.reshape(-1), self.hits.reshape(-1),
                       self.first_touch.reshape(-1), n,
                       -spec.resolution ** 2 / (2.0 * model.sigma ** 2), self._log_c,
                       1 if model.neighbourhood == 27 else 0, self._l_min, self._l_max)
+        if has_times and integrated:
+            touched_times = self.first_touch.reshape(-1)[touched[:n_touched]]
+            self.earliest_touch = min(self.earliest_touch, float(np.nanmin(touched_times)))
         batch = IntegrationCounts(integrated=int(integrated), outside=int(outside),
                                   invalid=int(invalid))
         self.counts.integrated += batch.integrated
@@ -180,13 +186,24 @@ class OccupancyGrid:
 
     def reset(self) -> None:
         self.log_odds.fill(self.prior_log_odds)
+        self._probability.fill(self.model.prior)
+        self.earliest_touch = math.inf
         self.hits.fill(0)
         self.first_touch.fill(np.nan)
         self.counts = IntegrationCounts()
 
     # ------------------------------------------------------------------ queries
     def probabilities(self) -> np.ndarray:
-        return probability(self.log_odds)
+        """Occupancy probability of every cell (read-only; kept current by each update)."""
+        view = self._probability.view()
+        view.flags.writeable = False
+        return view
+
+    def refresh(self) -> None:
+        """Recompute what is derived from the arrays after they were set directly (loading)."""
+        self._probability[...] = probability(self.log_odds)
+        finite = self.first_touch[np.isfinite(self.first_touch)]
+        self.earliest_touch = float(finite.min()) if finite.size else math.inf
 
     def touched_mask(self) -> np.ndarray:
         """Cells any measurement has updated (their log-odds left the prior, or were hit)."""

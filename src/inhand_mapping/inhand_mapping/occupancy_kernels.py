@@ -64,9 +64,13 @@ def accumulate(points, times, has_times, origin, inv_res, n, count, sum_e, sum_e
 
 
 @numba.njit(cache=True, nogil=True)
-def apply(touched, n_touched, count, sum_e, sum_e2, first, log_odds, hits, first_touch, n,
-          gauss, log_c, reach, l_min, l_max):
-    """Add the batch to the map; ``gauss`` = -res^2 / (2 sigma^2), ``reach`` 0 or 1."""
+def apply(touched, n_touched, count, sum_e, sum_e2, first, log_odds, probability, hits,
+          first_touch, n, gauss, log_c, reach, l_min, l_max):
+    """Add the batch to the map; ``gauss`` = -res^2 / (2 sigma^2), ``reach`` 0 or 1.
+
+    ``probability`` (p of each cell's log-odds) is refreshed for the cells that changed,
+    so readers never need a pass of exp over the whole grid.
+    """
     for k in range(n_touched):
         c = touched[k]
         cnt = count[c]
@@ -103,6 +107,7 @@ def apply(touched, n_touched, count, sum_e, sum_e2, first, log_odds, hits, first
                         log_odds[j] = l_min
                     elif log_odds[j] > l_max:
                         log_odds[j] = l_max
+                    probability[j] = 1.0 / (1.0 + math.exp(-log_odds[j]))
         count[c] = 0
         sum_e[0, c] = 0.0
         sum_e[1, c] = 0.0
@@ -112,8 +117,8 @@ def apply(touched, n_touched, count, sum_e, sum_e2, first, log_odds, hits, first
 
 
 @numba.njit(cache=True, nogil=True)
-def gather_cells(log_odds, probabilities, hits, first_touch, prior, origin, res, n,
-                 threshold, touched, touched_u32, occupied, occupied_u32):
+def gather_cells(log_odds, probabilities, hits, first_touch, time_origin, prior, origin, res,
+                 n, threshold, touched, touched_u32, occupied, occupied_u32):
     """Touched cells into ``touched`` and those above ``threshold`` also into ``occupied``
     (rows of 6 float32: x y z intensity hits first_touch; the ``*_u32`` arguments are the
     same buffers viewed as uint32 so the hit count is stored as an integer). Returns the
@@ -122,14 +127,8 @@ def gather_cells(log_odds, probabilities, hits, first_touch, prior, origin, res,
     One pass instead of the ~15 numpy passes of masks, index arrays and field copies: it
     is what keeps building the clouds of a full 70^3 map within a couple of milliseconds.
     The threshold is compared with the float64 probability, as OccupancyGrid.cells does.
-    First-touch times are relative to the earliest one in the map.
+    First-touch times are given relative to ``time_origin``.
     """
-    time_origin = np.inf
-    for c in range(n * n * n):
-        if first_touch[c] < time_origin:
-            time_origin = first_touch[c]
-    if not math.isfinite(time_origin):
-        time_origin = 0.0
     m = 0
     k = 0
     c = 0
