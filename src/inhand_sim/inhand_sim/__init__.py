@@ -1,0 +1,1 @@
+"""Simulated in-hand exploration sessions with exact ground truth."""

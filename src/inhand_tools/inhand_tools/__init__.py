@@ -1,0 +1,1 @@
+"""Bag replay and recording, topic echo, map metrics and map renders."""

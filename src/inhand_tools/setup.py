@@ -1,0 +1,29 @@
+from setuptools import find_packages, setup
+
+package_name = 'inhand_tools'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    extras_require={'test': ['pytest']},
+    zip_safe=True,
+    maintainer='In-hand mapping maintainers',
+    maintainer_email='maintainers@inhand-mapping.org',
+    description='Bag replay/record, topic echo, map metrics and map renders.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'bag_replay = inhand_tools.bag_replay:main',
+            'bag_record = inhand_tools.bag_record:main',
+            'topic_echo = inhand_tools.topic_echo:main',
+            'map_metrics = inhand_tools.map_metrics:main',
+            'render_map = inhand_tools.render_map:main',
+        ],
+    },
+)
