@@ -11,6 +11,7 @@ import tempfile
 import threading
 import time
 from collections import defaultdict
+from types import SimpleNamespace
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -19,20 +20,13 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from inhand_tools.launching import call_trigger as launching_call_trigger
+from inhand_tools.launching import executable
+
 WORKSPACE = pathlib.Path(__file__).resolve().parents[1]
-VENV_BIN = WORKSPACE / '.venv' / 'bin'
 
 
-def executable_path(name: str) -> str:
-    """The workspace executable: in .venv/bin (embedded ROS), else where colcon installed it
-    (``<prefix>/lib/<package>/<name>`` on a full ROS 2 install, found via AMENT_PREFIX_PATH)."""
-    candidate = VENV_BIN / name
-    if candidate.exists():
-        return str(candidate)
-    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
-        for path in pathlib.Path(prefix or '.').glob(f'lib/*/{name}'):
-            return str(path)
-    raise FileNotFoundError(f'{name}: not in {VENV_BIN} nor under AMENT_PREFIX_PATH')
+executable_path = executable
 
 
 class Process:
@@ -204,28 +198,11 @@ class PosePublisher:
 
 
 def call_trigger(service: str, timeout: float = 20.0):
-    """Call a std_srvs/Trigger service once; returns the response."""
-    from std_srvs.srv import Trigger
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = Node('test_trigger_client', context=context)
-    try:
-        client = node.create_client(Trigger, service)
-        if not client.wait_for_service(timeout_sec=timeout):
-            raise AssertionError(f'service {service} not available')
-        from rclpy.executors import SingleThreadedExecutor
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        future = client.call_async(Trigger.Request())
-        deadline = time.monotonic() + timeout
-        while not future.done() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.1)
-        if not future.done():
-            raise AssertionError(f'{service}: no answer within {timeout} s')
-        return future.result()
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    """Call a std_srvs/Trigger service once; returns (success, message) as a response."""
+    success, message = launching_call_trigger(service, timeout)
+    if 'did not' in message and not success:
+        raise AssertionError(message)
+    return SimpleNamespace(success=success, message=message)
 
 
 class CloudCounter(BackgroundNode):

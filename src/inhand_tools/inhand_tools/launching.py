@@ -1,0 +1,133 @@
+"""Start and stop a graph of workspace executables: what ``ros2 launch`` would do here.
+
+The pip runtime has no ``launch``; the launch scripts in ``launch_scripts/`` are Python
+files built on this module. A :class:`ProcessGroup` starts each process in a session of
+its own, prefixes its output with its name, and on exit (normal end, an exception,
+Ctrl-C or SIGTERM) stops them in reverse order of start: SIGINT first (each node's
+``close()`` runs, the driver sends ``P``), SIGKILL after a grace period. No process
+outlives the launch script.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Sequence
+
+__all__ = ['ProcessGroup', 'executable', 'call_trigger']
+
+
+def executable(name: str) -> str:
+    """A workspace executable: beside this Python (the venv), else on PATH, else under
+    AMENT_PREFIX_PATH's ``lib/<package>/`` (a colcon install)."""
+    beside = Path(sys.executable).parent / name
+    if beside.exists():
+        return str(beside)
+    found = shutil.which(name)
+    if found:
+        return found
+    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+        for path in Path(prefix or '.').glob(f'lib/*/{name}'):
+            return str(path)
+    raise FileNotFoundError(f'executable {name!r} not found (bootstrap the workspace first)')
+
+
+class ProcessGroup:
+    def __init__(self, grace: float = 10.0, stream=sys.stdout):
+        self.grace = grace
+        self.stream = stream
+        self.processes: list[tuple[str, subprocess.Popen]] = []
+        self._lock = threading.Lock()
+
+    def __enter__(self) -> 'ProcessGroup':
+        self._previous = {sig: signal.signal(sig, self._on_signal)
+                          for sig in (signal.SIGINT, signal.SIGTERM)}
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop_all()
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def _on_signal(self, signum, _frame) -> None:
+        raise KeyboardInterrupt(f'signal {signum}')
+
+    def start(self, name: str, args: Sequence[str], env: dict | None = None) -> subprocess.Popen:
+        """Start ``args`` (first element: an executable name or path) as ``name``."""
+        command = [executable(args[0]) if os.sep not in args[0] else args[0], *args[1:]]
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                   stdin=subprocess.DEVNULL, env=env, start_new_session=True,
+                                   text=True, bufsize=1)
+        threading.Thread(target=self._pump, args=(name, process), daemon=True).start()
+        self.processes.append((name, process))
+        return process
+
+    def _pump(self, name: str, process: subprocess.Popen) -> None:
+        for line in process.stdout:
+            with self._lock:
+                self.stream.write(f'[{name}] {line}')
+                self.stream.flush()
+
+    def run(self, name: str, args: Sequence[str], timeout: float | None = None) -> int:
+        """Start ``args``, wait for it to end, return its exit code."""
+        process = self.start(name, args)
+        try:
+            return process.wait(timeout)
+        finally:
+            self.stop(name, process)
+
+    def stop(self, name: str, process: subprocess.Popen) -> int | None:
+        if process.poll() is None:
+            try:
+                os.killpg(process.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+            try:
+                process.wait(self.grace)
+            except subprocess.TimeoutExpired:
+                with self._lock:
+                    self.stream.write(f'[launch] {name} did not stop within {self.grace:g} s: '
+                                      'killing it\n')
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+        return process.returncode
+
+    def stop_all(self) -> None:
+        for name, process in reversed(self.processes):
+            self.stop(name, process)
+        time.sleep(0.05)  # let the output threads print the last lines
+
+
+def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
+    """Call a std_srvs/Trigger service once (waiting for it to appear); (success, message)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from std_srvs.srv import Trigger
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node('launch_service_client', context=context)
+    try:
+        client = node.create_client(Trigger, service)
+        if not client.wait_for_service(timeout_sec=timeout):
+            return False, f'service {service} did not appear within {timeout:g} s'
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        future = client.call_async(Trigger.Request())
+        deadline = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        if not future.done():
+            return False, f'service {service} did not answer within {timeout:g} s'
+        result = future.result()
+        return bool(result.success), result.message
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
