@@ -131,3 +131,15 @@ def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: str,
+                  namespace: str | None = None) -> None:
+    """Start ``registration_node`` and ``occupancy_node`` with the parameters of ``config``
+    (a file with both nodes' sections), saving maps to ``output_dir/map_name``."""
+    ros_args = ['--ros-args', '--params-file', config]
+    if namespace:
+        ros_args += ['-r', f'__ns:={namespace}']
+    group.start('registration', ['registration_node', *ros_args])
+    group.start('occupancy', ['occupancy_node', *ros_args, '-p', f'output_dir:={output_dir}',
+                              '-p', f'map_name:={map_name}'])

@@ -1,0 +1,56 @@
+"""Live mode without hardware: emulated Liberty -> driver -> registration -> occupancy.
+
+    .venv/bin/python launch_scripts/live_emulator.py [--duration S] [--motion SOURCE]
+        [--format binary|ascii] [--output DIR]
+
+liberty_emulator streams on a pty (built-in motion by default: fingertips stroking a
+sphere on a swaying object; or a text recording or a bag), liberty_driver publishes
+polhemus/<name>/pose, registration_node and occupancy_node build the map. Ctrl-C (or the
+end of --duration) saves the map to --output and stops every process cleanly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+from inhand_tools.launching import ProcessGroup, call_trigger, mapping_graph
+
+WORKSPACE = Path(__file__).resolve().parents[1]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--duration', type=float, help='seconds (default: until Ctrl-C)')
+    parser.add_argument('--motion', default='builtin')
+    parser.add_argument('--format', choices=('binary', 'ascii'), default='binary')
+    parser.add_argument('--output', type=Path, default=WORKSPACE / 'output' / 'live')
+    args = parser.parse_args(argv)
+    port = f'/tmp/liberty-live-{os.getpid()}'
+    args.output.mkdir(parents=True, exist_ok=True)
+    with ProcessGroup() as group:
+        group.start('emulator', ['liberty_emulator', '--port', port, '--motion', args.motion])
+        group.start('driver', ['liberty_driver', '--ros-args', '--params-file',
+                               str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
+                               '-p', f'port:={port}', '-p', f'output_format:={args.format}'])
+        mapping_graph(group, str(WORKSPACE / 'config' / 'mapping.yaml'), str(args.output),
+                      'live')
+        print(f'[launch] live graph on {port}; Ctrl-C to stop', flush=True)
+        try:
+            deadline = time.monotonic() + args.duration if args.duration else None
+            while deadline is None or time.monotonic() < deadline:
+                if any(p.poll() is not None for _, p in group.processes):
+                    print('[launch] a process ended early; stopping', flush=True)
+                    return 1
+                time.sleep(0.2)
+        except KeyboardInterrupt:
+            pass
+        ok, message = call_trigger('occupancy/save', timeout=10.0)
+        print(f'[launch] occupancy/save: {message}', flush=True)
+    return 0 if ok else 1
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,94 @@
+"""Replay a bag of the driver's topics through the mapping graph, then save and show the map.
+
+    .venv/bin/python launch_scripts/replay_bag.py BAG [--config FILE] [--output DIR]
+        [--name NAME] [--rate FACTOR | --fast] [--no-render]
+
+Starts registration_node and occupancy_node, replays BAG with bag_replay over real DDS,
+waits for the last registered points to be integrated, calls occupancy/save, stops the
+nodes, then renders the map (render_map) and, when the bag has a ground-truth sidecar
+(BAG.truth.npz, written by simulate_session), prints its metrics (map_metrics). The
+config defaults to config/mapping.yaml (tracked object) when the bag has an object sensor
+topic, else config/mapping_static.yaml.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from inhand_tools.launching import ProcessGroup, call_trigger, mapping_graph
+
+WORKSPACE = Path(__file__).resolve().parents[1]
+SETTLE = 1.0  # s after the replay: the registration node publishes every 50 ms
+
+
+def bag_has_object_sensor(bag: Path) -> bool:
+    from rosbags.highlevel import AnyReader
+    try:
+        with AnyReader([bag]) as reader:
+            return any(c.topic.lstrip('/') == 'polhemus/object/pose' for c in reader.connections)
+    except Exception:  # let bag_replay report what is wrong with the bag
+        return True
+
+
+def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: list[str],
+           render: bool = True) -> int:
+    if not bag.exists():
+        print(f'replay_bag: {bag}: no such bag', file=sys.stderr)
+        return 2
+    if config is None:
+        config = WORKSPACE / 'config' / ('mapping.yaml' if bag_has_object_sensor(bag)
+                                         else 'mapping_static.yaml')
+    output.mkdir(parents=True, exist_ok=True)
+    print(f'[launch] mapping graph with {config}; replaying {bag}', flush=True)
+    started = time.monotonic()
+    with ProcessGroup() as group:
+        mapping_graph(group, str(config), str(output), name)
+        code = group.run('replay', ['bag_replay', str(bag), *rate_args])
+        if code != 0:
+            print(f'[launch] bag_replay ended with exit code {code}', file=sys.stderr)
+            if code != 1:  # 1: truncated bag, replayed what could be read
+                return code
+        time.sleep(SETTLE)
+        ok, message = call_trigger('occupancy/save')
+        print(f'[launch] occupancy/save: {message}', flush=True)
+        if not ok:
+            return 1
+    print(f'[launch] graph stopped after {time.monotonic() - started:.1f} s', flush=True)
+    npz = output / f'{name}.npz'
+    truth = bag.parent / f'{bag.name}.truth.npz'
+    with ProcessGroup() as group:
+        if render:
+            args = ['render_map', str(npz), '--bag', str(bag), '--output', str(output)]
+            if truth.exists():
+                args += ['--truth', str(truth)]
+            if group.run('render', args) != 0:
+                return 1
+        if truth.exists():
+            if group.run('metrics', ['map_metrics', str(npz), '--truth', str(truth), '--bag',
+                                     str(bag), '--json', str(output / f'{name}.metrics.json')]):
+                return 1
+    print(f'[launch] done: map, pictures and metrics are in {output}/', flush=True)
+    return 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('bag', type=Path)
+    parser.add_argument('--config', type=Path)
+    parser.add_argument('--output', type=Path, default=WORKSPACE / 'output')
+    parser.add_argument('--name', help='map name (default: the bag name)')
+    speed = parser.add_mutually_exclusive_group()
+    speed.add_argument('--rate', type=float, help='replay speed factor (default: --fast)')
+    speed.add_argument('--fast', action='store_true', help='as fast as the graph keeps up')
+    parser.add_argument('--no-render', action='store_true')
+    args = parser.parse_args(argv)
+    rate_args = ['--rate', str(args.rate)] if args.rate else ['--fast']
+    return replay(args.bag, args.config, args.output, args.name or args.bag.name, rate_args,
+                  render=not args.no_render)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,61 @@
+"""The launch scripts start the graph, save the map and leave no process behind."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import WORKSPACE
+
+pytestmark = pytest.mark.dds
+
+
+def children_alive(pids: list[int]) -> list[int]:
+    alive = []
+    for pid in pids:
+        try:
+            os.kill(pid, 0)
+            alive.append(pid)
+        except ProcessLookupError:
+            pass
+    return alive
+
+
+def descendants(pid: int) -> list[int]:
+    out = subprocess.run(['ps', '-e', '-o', 'pid=,ppid='], capture_output=True, text=True).stdout
+    children: dict[int, list[int]] = {}
+    for line in out.splitlines():
+        child, parent = map(int, line.split())
+        children.setdefault(parent, []).append(child)
+    found, stack = [], [pid]
+    while stack:
+        for child in children.get(stack.pop(), []):
+            found.append(child)
+            stack.append(child)
+    return found
+
+
+@pytest.mark.parametrize('how', ['duration', 'ctrl-c'])
+def test_live_graph_saves_the_map_and_leaves_no_orphans(tmp_path, how):
+    args = [sys.executable, str(WORKSPACE / 'launch_scripts' / 'live_emulator.py'),
+            '--output', str(tmp_path)]
+    if how == 'duration':
+        args += ['--duration', '6']
+    launcher = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True)
+    time.sleep(5.0)
+    started = descendants(launcher.pid)
+    assert len(started) >= 4, 'emulator, driver, registration and occupancy should run'
+    if how == 'ctrl-c':
+        launcher.send_signal(signal.SIGINT)
+    output, _ = launcher.communicate(timeout=60)
+    assert launcher.returncode == 0, output
+    assert (tmp_path / 'live.npz').exists() and (tmp_path / 'live.ply').exists(), output
+    assert 'points integrated' in output and 'frames published' in output
+    time.sleep(0.5)
+    assert children_alive(started) == [], f'orphans left: {children_alive(started)}'
