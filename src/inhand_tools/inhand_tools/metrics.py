@@ -1,0 +1,331 @@
+"""How good a map is against the true surface (numpy and scipy's KD-tree only; no ROS).
+
+Inputs: cell centres of a map with their occupancy probabilities, the map's lattice (cell
+edge ``h`` and the corner of any cell), and the ground truth: surface samples (uniform by
+area), true contact points and true stray fingertip positions, all in the map's frame.
+
+Definitions (metres inside, millimetres in the reported ``*_mm`` values)
+-------------------------------------------------------------------------
+* **Occupied cells** ``A``: cells with probability ``> threshold`` (default 0.8).
+* **Explored surface** ``S_e``: the surface samples within ``explored_radius`` of a true
+  contact. Default 5 mm (one cell of the default grid): with the one-cell tolerance below,
+  a map that occupies exactly the cells of the true contacts recalls every explored cell
+  (two points at most ``h`` apart lie in cells at most one index apart on every axis), so
+  a perfect map of what was touched scores recall 1, and surface nobody came near is not
+  held against the map.
+* **Cells of a point set**: ``floor((p - origin) / h)`` per axis. ``G_e`` = cells holding at
+  least one explored sample, ``G`` = cells holding any surface sample.
+* **Voxel IoU** = ``|A & G_e| / |A | G_e|`` (exact cell sets; no tolerance).
+* **Cell precision** = fraction of ``A`` within ``tolerance_cells`` (default 1: the cell itself
+  or one of its 26 neighbours, Chebyshev distance in cell indices) of a cell of ``G``: the
+  whole true surface, since an occupied cell on surface that was not explored is still
+  right. **Cell recall** = fraction of ``G_e`` within ``tolerance_cells`` of a cell of ``A``.
+* **Chamfer distance** = ``(mean_{a in A} d(a, S) + mean_{s in S_e} d(s, A)) / 2``: the mean of
+  the two directed nearest-neighbour distances, occupied cell centres to the surface
+  samples and explored samples to the occupied cell centres.
+* **F-score at 5 mm** (``fscore_distance``) = ``2 P R / (P + R)`` with ``P`` = fraction of
+  occupied centres within 5 mm of a surface sample and ``R`` = fraction of explored samples
+  within 5 mm of an occupied centre (0 when both are 0).
+* **Centre-of-mass error** = ``|sum p_a a / sum p_a - mean(S_e)|``: the map's centre of mass
+  (occupied cells weighted by probability, as the object-centric frame) against the
+  area-weighted centroid of the explored surface (the plain mean, since samples are
+  uniform by area).
+* **Normal offset** = mean over ``A`` of ``(a - s) . n_s``, ``s`` the nearest sample: > 0 when
+  the map sits outside the surface (a fingertip sensor above the contact would do that).
+* **Stray cells** = occupied cells within one cell (Chebyshev <= 1) of the cell of a true
+  stray point that is farther than ``stray_surface_distance`` (5 mm) from the surface.
+  **Off-surface cells** = occupied cells not within tolerance of ``G`` (``|A|`` minus the
+  correct ones), whatever put them there.
+* Registered raw points (:func:`point_metrics`): the same distances with the points in place
+  of cell centres: precision, recall and F-score at 5 mm, Chamfer, and the median and 95th
+  percentile of point-to-surface distances.
+
+Distances to the surface are distances to the nearest sample: they overestimate the true
+distance by at most about half the sample spacing (``sample_spacing_mm`` in the results;
+about 0.3 mm for 100,000 samples on a 4 cm sphere).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ['Lattice', 'infer_lattice', 'cell_indices', 'explored_mask', 'SurfaceTruth',
+           'map_metrics', 'point_metrics', 'METRIC_LABELS']
+
+# Cell indices are packed into one int64 per cell: 20 bits per axis, offset to be positive.
+_BITS = 20
+_OFFSET = 1 << (_BITS - 1)
+_NEIGHBOURS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)],
+                       dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """Cubic cells of edge ``resolution``; ``origin`` is the corner of cell (0, 0, 0)."""
+
+    resolution: float
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.resolution) and self.resolution > 0):
+            raise ValueError(f'cell size must be positive, not {self.resolution!r}')
+
+
+def infer_lattice(centres, resolution: float | None = None) -> Lattice:
+    """The lattice of a set of cell centres (a PLY or a recorded cloud carries none).
+
+    The cell edge is the smallest gap between distinct centre coordinates on any axis
+    (``resolution`` overrides it); the origin puts the centres at half-cell positions.
+    """
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    if len(centres) == 0:
+        raise ValueError('no cells to infer the cell size from')
+    if resolution is None:
+        gaps = []
+        for axis in range(3):
+            values = np.unique(np.round(centres[:, axis], 7))
+            step = np.diff(values)
+            step = step[step > 1e-6]
+            if step.size:
+                gaps.append(step.min())
+        if not gaps:
+            raise ValueError('cannot infer the cell size from a single cell: give it '
+                             '(--resolution)')
+        resolution = float(np.round(min(gaps), 6))
+    origin = centres[0] - 0.5 * resolution
+    return Lattice(float(resolution), tuple(float(v) for v in origin))
+
+
+def cell_indices(points, lattice: Lattice) -> np.ndarray:
+    """Integer cell index (n, 3) of each point."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    return np.floor((points - np.asarray(lattice.origin)) / lattice.resolution).astype(np.int64)
+
+
+def _keys(indices: np.ndarray) -> np.ndarray:
+    shifted = np.clip(indices + _OFFSET, 0, (1 << _BITS) - 1)
+    return (shifted[:, 0] << (2 * _BITS)) | (shifted[:, 1] << _BITS) | shifted[:, 2]
+
+
+def _dilated_keys(indices: np.ndarray, cells: int) -> np.ndarray:
+    """Keys of every cell within Chebyshev distance ``cells`` of one of ``indices``."""
+    if cells <= 0 or len(indices) == 0:
+        return np.unique(_keys(indices))
+    offsets = _NEIGHBOURS if cells == 1 else np.array(
+        np.meshgrid(*[np.arange(-cells, cells + 1)] * 3, indexing='ij')).reshape(3, -1).T
+    unique = np.unique(indices, axis=0)
+    return np.unique(_keys((unique[:, None, :] + offsets[None, :, :]).reshape(-1, 3)))
+
+
+def explored_mask(surface_points, contacts, radius: float) -> np.ndarray:
+    """Which surface samples lie within ``radius`` of a contact (all False if none)."""
+    surface_points = np.asarray(surface_points, dtype=float).reshape(-1, 3)
+    contacts = np.asarray(contacts, dtype=float).reshape(-1, 3)
+    if len(contacts) == 0:
+        return np.zeros(len(surface_points), dtype=bool)
+    distance, _ = cKDTree(contacts).query(surface_points, k=1, distance_upper_bound=radius,
+                                          workers=-1)
+    return distance <= radius
+
+
+class SurfaceTruth:
+    """Surface samples (and normals), the explored part, and a KD-tree over the samples;
+    built once and shared by the map and the point metrics."""
+
+    def __init__(self, surface_points, contacts, surface_normals=None, stray_points=None,
+                 explored_radius: float = 0.005):
+        self.points = np.ascontiguousarray(surface_points, dtype=float).reshape(-1, 3)
+        if len(self.points) == 0:
+            raise ValueError('the truth has no surface samples')
+        self.normals = (None if surface_normals is None
+                        else np.asarray(surface_normals, dtype=float).reshape(-1, 3))
+        self.contacts = np.asarray(contacts, dtype=float).reshape(-1, 3)
+        self.strays = (np.empty((0, 3)) if stray_points is None
+                       else np.asarray(stray_points, dtype=float).reshape(-1, 3))
+        self.explored_radius = float(explored_radius)
+        self.tree = cKDTree(self.points)
+        self.explored = explored_mask(self.points, self.contacts, explored_radius)
+        self.explored_points = self.points[self.explored]
+        # Typical spacing: nearest-neighbour distance among a subset of the samples.
+        subset = self.points[:: max(1, len(self.points) // 2000)]
+        gaps, _ = self.tree.query(subset, k=2, workers=-1)
+        self.sample_spacing = float(np.median(gaps[:, 1])) if len(self.points) > 1 else 0.0
+
+    def distance(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """Distance of each point to the nearest surface sample, and that sample's index."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        if len(points) == 0:
+            return np.empty(0), np.empty(0, dtype=np.int64)
+        return self.tree.query(points, k=1, workers=-1)
+
+
+def _ratio(numerator, denominator) -> float:
+    return float(numerator) / float(denominator) if denominator else math.nan
+
+
+def _fscore(precision: float, recall: float) -> float:
+    if math.isnan(precision) or math.isnan(recall):
+        return math.nan
+    return 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+
+
+def _nearest_distances(targets: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    if len(queries) == 0:
+        return np.empty(0)
+    if len(targets) == 0:
+        return np.full(len(queries), math.inf)
+    return cKDTree(targets).query(queries, k=1, workers=-1)[0]
+
+
+def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
+                threshold: float = 0.8, tolerance_cells: int = 1,
+                fscore_distance: float = 0.005,
+                stray_surface_distance: float = 0.005) -> dict:
+    """The metrics of the module docstring for the cells above ``threshold``.
+
+    ``centres`` (n, 3) and ``probabilities`` (n,) may hold every touched cell; only those
+    with probability > threshold count. Returns a flat dict (JSON-ready, NaN where a
+    metric is undefined, e.g. precision of an empty map).
+    """
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    probabilities = np.asarray(probabilities, dtype=float).reshape(-1)
+    if len(centres) != len(probabilities):
+        raise ValueError(f'{len(centres)} centres but {len(probabilities)} probabilities')
+    keep = probabilities > threshold
+    occupied, weights = centres[keep], probabilities[keep]
+    explored = truth.explored_points
+
+    # Voxel sets.
+    occupied_cells = np.unique(cell_indices(occupied, lattice), axis=0)
+    occupied_keys = _keys(occupied_cells)
+    explored_cells = np.unique(cell_indices(explored, lattice), axis=0)
+    explored_keys = _keys(explored_cells)
+    surface_keys = np.unique(_keys(cell_indices(truth.points, lattice)))
+    intersection = np.intersect1d(occupied_keys, explored_keys).size
+    union = occupied_keys.size + explored_keys.size - intersection
+    correct = np.isin(occupied_keys, _dilated_keys(
+        np.unique(cell_indices(truth.points, lattice), axis=0), tolerance_cells))
+    recalled = np.isin(explored_keys, _dilated_keys(occupied_cells, tolerance_cells))
+
+    # Distances.
+    to_surface, nearest = truth.distance(occupied)
+    to_map = _nearest_distances(occupied, explored)
+    precision_f = _ratio(np.count_nonzero(to_surface <= fscore_distance), len(occupied))
+    recall_f = _ratio(np.count_nonzero(to_map <= fscore_distance), len(explored))
+    chamfer = (float(np.mean(to_surface)) + float(np.mean(to_map))) / 2.0 \
+        if len(occupied) and len(explored) else math.nan
+
+    offset = math.nan
+    if truth.normals is not None and len(occupied):
+        offset = float(np.mean(np.einsum('ij,ij->i', occupied - truth.points[nearest],
+                                         truth.normals[nearest])))
+
+    com_error, com_map, com_truth = math.nan, None, None
+    if len(explored):
+        com_truth = explored.mean(axis=0)
+    if len(occupied):
+        com_map = weights @ occupied / weights.sum()
+    if com_map is not None and com_truth is not None:
+        com_error = float(np.linalg.norm(com_map - com_truth))
+
+    # Strays: true off-surface fingertip positions, and occupied cells next to them.
+    far_strays = np.empty((0, 3))
+    if len(truth.strays):
+        far_strays = truth.strays[truth.distance(truth.strays)[0] > stray_surface_distance]
+    stray_cells = 0
+    if len(far_strays) and len(occupied):
+        near_strays = _dilated_keys(cell_indices(far_strays, lattice), 1)
+        stray_cells = int(np.count_nonzero(np.isin(occupied_keys, near_strays)))
+
+    mm = 1000.0
+    return {
+        'threshold': float(threshold),
+        'resolution_mm': lattice.resolution * mm,
+        'occupied_cells': int(len(occupied_cells)),
+        'explored_cells': int(len(explored_cells)),
+        'surface_cells': int(surface_keys.size),
+        'iou': _ratio(intersection, union),
+        'cell_precision': _ratio(np.count_nonzero(correct), correct.size),
+        'cell_recall': _ratio(np.count_nonzero(recalled), recalled.size),
+        'cell_fscore': _fscore(_ratio(np.count_nonzero(correct), correct.size),
+                               _ratio(np.count_nonzero(recalled), recalled.size)),
+        'chamfer_mm': chamfer * mm,
+        'map_to_surface_mm': float(np.mean(to_surface)) * mm if len(occupied) else math.nan,
+        'surface_to_map_mm': float(np.mean(to_map)) * mm if len(explored) and len(occupied)
+        else math.nan,
+        'precision_at_5mm': precision_f,
+        'recall_at_5mm': recall_f,
+        'fscore_at_5mm': _fscore(precision_f, recall_f),
+        'normal_offset_mm': offset * mm,
+        'com_error_mm': com_error * mm,
+        'com_map': None if com_map is None else [float(v) for v in com_map],
+        'com_truth': None if com_truth is None else [float(v) for v in com_truth],
+        'stray_cells': stray_cells,
+        'off_surface_cells': int(correct.size - np.count_nonzero(correct)),
+        'strays_far_from_surface': int(len(far_strays)),
+        'strays': int(len(truth.strays)),
+        'fscore_distance_mm': fscore_distance * mm,
+        'tolerance_cells': int(tolerance_cells),
+        'explored_radius_mm': truth.explored_radius * mm,
+        'explored_samples': int(len(explored)),
+        'surface_samples': int(len(truth.points)),
+        'contacts': int(len(truth.contacts)),
+        'sample_spacing_mm': truth.sample_spacing * mm,
+    }
+
+
+def point_metrics(points, truth: SurfaceTruth, fscore_distance: float = 0.005) -> dict:
+    """Registered raw points against the surface: the distance metrics of the module doc."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    explored = truth.explored_points
+    to_surface, _ = truth.distance(points)
+    to_points = _nearest_distances(points, explored)
+    precision = _ratio(np.count_nonzero(to_surface <= fscore_distance), len(points))
+    recall = _ratio(np.count_nonzero(to_points <= fscore_distance), len(explored))
+    mm = 1000.0
+    has_both = len(points) and len(explored)
+    return {
+        'points': int(len(points)),
+        'precision_at_5mm': precision,
+        'recall_at_5mm': recall,
+        'fscore_at_5mm': _fscore(precision, recall),
+        'chamfer_mm': (float(np.mean(to_surface)) + float(np.mean(to_points))) / 2 * mm
+        if has_both else math.nan,
+        'points_to_surface_mm': float(np.mean(to_surface)) * mm if len(points) else math.nan,
+        'median_to_surface_mm': float(np.median(to_surface)) * mm if len(points) else math.nan,
+        'p95_to_surface_mm': float(np.percentile(to_surface, 95)) * mm if len(points)
+        else math.nan,
+        'surface_to_points_mm': float(np.mean(to_points)) * mm if has_both else math.nan,
+    }
+
+
+# Row labels of the printed table: key -> (label, format).
+METRIC_LABELS = {
+    'occupied_cells': ('occupied cells (> threshold)', '{:d}'),
+    'explored_cells': ('explored surface cells (truth)', '{:d}'),
+    'iou': ('voxel IoU (occupied vs explored cells)', '{:.3f}'),
+    'cell_precision': ('cell precision (within 1 cell of surface)', '{:.3f}'),
+    'cell_recall': ('cell recall (explored cells within 1 cell)', '{:.3f}'),
+    'cell_fscore': ('cell F-score', '{:.3f}'),
+    'precision_at_5mm': ('precision @ 5 mm', '{:.3f}'),
+    'recall_at_5mm': ('recall @ 5 mm', '{:.3f}'),
+    'fscore_at_5mm': ('F-score @ 5 mm', '{:.3f}'),
+    'chamfer_mm': ('Chamfer distance (mm)', '{:.2f}'),
+    'map_to_surface_mm': ('  map -> surface, mean (mm)', '{:.2f}'),
+    'surface_to_map_mm': ('  explored surface -> map, mean (mm)', '{:.2f}'),
+    'normal_offset_mm': ('mean offset along the normal (mm, + outside)', '{:+.2f}'),
+    'com_error_mm': ('centre-of-mass error (mm)', '{:.2f}'),
+    'stray_cells': ('occupied cells at true strays (> 5 mm off)', '{:d}'),
+    'off_surface_cells': ('occupied cells off the surface (> 1 cell)', '{:d}'),
+    'strays_far_from_surface': ('true stray points > 5 mm off the surface', '{:d}'),
+    'points': ('registered points', '{:d}'),
+    'points_to_surface_mm': ('  points -> surface, mean (mm)', '{:.2f}'),
+    'median_to_surface_mm': ('  points -> surface, median (mm)', '{:.2f}'),
+    'p95_to_surface_mm': ('  points -> surface, 95th percentile (mm)', '{:.2f}'),
+    'surface_to_points_mm': ('  explored surface -> points, mean (mm)', '{:.2f}'),
+}

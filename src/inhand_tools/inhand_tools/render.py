@@ -1,0 +1,372 @@
+"""Pictures of maps and point clouds like the paper's figures 4, 5 and 8 (numpy + OpenCV).
+
+* Orthographic views: the scale is the same everywhere in a picture, so the scale bar (cm)
+  is true for every part of the object. A view is an azimuth about the "up" axis and an
+  elevation above the horizontal; the data frame's "up" axis is configurable (default -z:
+  the tracker frame's z points down, and the object frame is the object sensor's frame,
+  usually mounted the same way).
+* Map cells are drawn as shaded cubes, back to front (painter's algorithm: for equal
+  axis-aligned cubes on a lattice seen orthographically, sorting the centres by depth is
+  a correct order). Geometry is computed for all cells at once; only the polygon fills
+  loop over cells. Probability sets the colour, darker = more probable (as in the
+  paper); each visible face gets its own light so the cubes read as 3-D.
+* Points are splats with a z-buffer (nearest wins), vectorised.
+* Everything is drawn at twice the size and shrunk (anti-aliasing); labels are drawn at
+  the final size.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ['View', 'OBLIQUE', 'SIDE', 'TOP', 'Camera', 'UP_AXES', 'probability_colours',
+           'render_cells', 'render_points', 'annotate', 'titled', 'hstack', 'grid_figure',
+           'probability_legend', 'key_legend', 'BACKGROUND', 'bounds_of']
+
+BACKGROUND = (255, 255, 255)
+SUPERSAMPLE = 2
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+TEXT = (30, 30, 30)
+
+# "up" axis of the data -> rotation into display coordinates (z up, right-handed).
+UP_AXES = {
+    'z': np.eye(3),
+    '-z': np.diag([1.0, -1.0, -1.0]),
+    'y': np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+    '-y': np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]),
+    'x': np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+    '-x': np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]]),
+}
+
+
+@dataclass(frozen=True)
+class View:
+    name: str
+    azimuth: float    # degrees about the up axis, 0: looking along -x (display)
+    elevation: float  # degrees above the horizontal
+
+
+OBLIQUE = View('oblique view', -35.0, 28.0)
+SIDE = View('side view', 55.0, 8.0)
+TOP = View('top view', 0.0, 89.9)
+
+# Sequential colours, light to dark (RGB anchors), for probabilities 0 .. 1.
+_ANCHORS = np.array([[0.0, 247, 251, 255], [0.25, 198, 219, 239], [0.5, 133, 183, 219],
+                     [0.7, 66, 146, 198], [0.85, 24, 96, 168], [1.0, 8, 40, 90]])
+
+
+def probability_colours(probabilities) -> np.ndarray:
+    """BGR uint8 colour per probability: light (0) to dark blue (1): darker = more probable."""
+    p = np.clip(np.asarray(probabilities, dtype=float), 0.0, 1.0)
+    rgb = np.stack([np.interp(p, _ANCHORS[:, 0], _ANCHORS[:, k]) for k in (1, 2, 3)], axis=-1)
+    return np.round(rgb[..., ::-1]).astype(np.uint8)
+
+
+def bounds_of(*point_sets, robust: bool = False) -> tuple[np.ndarray, float]:
+    """(centre, radius) of a ball around the given point sets: the centre of their
+    bounding box and the largest distance from it (the 0.5-99.5 percentile box and the
+    99.5th percentile distance per set if ``robust``); a 1 cm ball if there are no points."""
+    sets = []
+    for points in point_sets:
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        points = points[np.all(np.isfinite(points), axis=1)]
+        if len(points):
+            sets.append(points)
+    if not sets:
+        return np.zeros(3), 0.01
+    use_percentiles = [robust and len(points) > 50 for points in sets]
+    lows = [np.percentile(p, 0.5, axis=0) if r else p.min(axis=0)
+            for p, r in zip(sets, use_percentiles)]
+    highs = [np.percentile(p, 99.5, axis=0) if r else p.max(axis=0)
+             for p, r in zip(sets, use_percentiles)]
+    centre = (np.min(lows, axis=0) + np.max(highs, axis=0)) / 2.0
+    radius = 0.0
+    for points, r in zip(sets, use_percentiles):
+        distance = np.linalg.norm(points - centre, axis=1)
+        radius = max(radius, float(np.percentile(distance, 99.5) if r else distance.max()))
+    return centre, max(radius, 0.005)
+
+
+class Camera:
+    """Orthographic camera framing a ball (``centre``, ``radius``) of the data frame in a
+    ``size`` x ``size`` panel."""
+
+    def __init__(self, view: View, centre, radius: float, size: int, up: str = '-z',
+                 fill: float = 0.86):
+        if up not in UP_AXES:
+            raise ValueError(f'up axis must be one of {", ".join(UP_AXES)}, not {up!r}')
+        self.view, self.size, self.up = view, int(size), up
+        self.to_display = UP_AXES[up]
+        self.centre = np.asarray(centre, dtype=float)
+        az, el = math.radians(view.azimuth), math.radians(view.elevation)
+        eye = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+        right = np.array([-math.sin(az), math.cos(az), 0.0])
+        screen_up = np.cross(eye, right)
+        # Rows: right, up, towards the camera, in data coordinates.
+        self.basis = np.stack([right, screen_up, eye]) @ self.to_display
+        self.scale = fill * self.size / 2.0 / max(radius, 1e-6)  # pixels per metre
+
+    def project(self, points, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (n, 2) float (at ``factor`` times the size) and depth (n,),
+        larger = nearer the camera."""
+        local = (np.asarray(points, dtype=float).reshape(-1, 3) - self.centre) @ self.basis.T
+        half = self.size * factor / 2.0
+        pixels = np.empty((len(local), 2))
+        pixels[:, 0] = half + local[:, 0] * self.scale * factor
+        pixels[:, 1] = half - local[:, 1] * self.scale * factor
+        return pixels, local[:, 2]
+
+    def light_in_data(self) -> np.ndarray:
+        """The pictures' light direction (towards the light) in data coordinates."""
+        return self.basis.T @ _LIGHT
+
+    def direction(self, vectors) -> np.ndarray:
+        """Screen direction (right, down) of data-frame vectors, pixels per metre."""
+        local = np.asarray(vectors, dtype=float).reshape(-1, 3) @ self.basis.T
+        return np.stack([local[:, 0], -local[:, 1]], axis=1) * self.scale
+
+
+def _blank(size: int) -> np.ndarray:
+    return np.full((size, size, 3), BACKGROUND, dtype=np.uint8)
+
+
+def _shrink(image: np.ndarray, size: int) -> np.ndarray:
+    return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA)
+
+
+_CUBE_CORNERS = np.array([[i, j, k] for i in (-0.5, 0.5) for j in (-0.5, 0.5)
+                          for k in (-0.5, 0.5)])
+# Faces by axis and side: corner indices (in _CUBE_CORNERS order) around the face.
+_FACES = {(0, -1): [0, 1, 3, 2], (0, 1): [4, 5, 7, 6], (1, -1): [0, 1, 5, 4],
+          (1, 1): [2, 3, 7, 6], (2, -1): [0, 2, 6, 4], (2, 1): [1, 3, 7, 5]}
+_LIGHT = np.array([-0.35, 0.75, 0.55])  # in camera coordinates (right, up, towards viewer)
+_LIGHT /= np.linalg.norm(_LIGHT)
+
+
+def render_cells(camera: Camera, centres, resolution: float, colours,
+                 edges: bool = True) -> np.ndarray:
+    """Cubes of edge ``resolution`` at ``centres`` (data frame), ``colours`` BGR (n, 3) or
+    one colour; returns a ``camera.size`` square BGR image."""
+    factor = SUPERSAMPLE
+    image = _blank(camera.size * factor)
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    if len(centres) == 0:
+        return _shrink(image, camera.size)
+    colours = np.broadcast_to(np.asarray(colours, dtype=float).reshape(-1, 3),
+                              (len(centres), 3))
+    # Visible faces: the same for every cube in an orthographic view.
+    faces, shades = [], []
+    for (axis, side), corners in _FACES.items():
+        normal = np.zeros(3)
+        normal[axis] = side
+        facing = camera.basis @ normal  # normal in camera coordinates
+        if facing[2] > 1e-3:
+            faces.append(corners)
+            shades.append(0.55 + 0.45 * max(0.0, float(facing @ _LIGHT)))
+    order = np.argsort(camera.project(centres)[1], kind='stable')  # far first
+    corners = (centres[order, None, :] + _CUBE_CORNERS[None] * resolution).reshape(-1, 3)
+    pixels, _ = camera.project(corners, factor)
+    shift = 4  # fixed-point sub-pixel bits for OpenCV
+    pixels = np.round(pixels * (1 << shift)).astype(np.int32).reshape(len(centres), 8, 2)
+    polygons = np.ascontiguousarray(pixels[:, np.array(faces)])  # (n, faces, 4, 2)
+    face_colours = colours[order][:, None, :] * np.array(shades)[None, :, None]
+    face_colours = np.clip(face_colours, 0, 255).astype(np.uint8).tolist()
+    edge_colours = np.clip(colours[order] * 0.55, 0, 255).astype(np.uint8).tolist()
+    thickness = max(1, factor // 2)
+    for index in range(len(centres)):
+        quads = polygons[index]
+        for face in range(len(faces)):
+            cv2.fillPoly(image, [quads[face]], face_colours[index][face], cv2.LINE_8, shift)
+        if edges:
+            cv2.polylines(image, list(quads), True, edge_colours[index], thickness,
+                          cv2.LINE_8, shift)
+    return _shrink(image, camera.size)
+
+
+def render_points(camera: Camera, points, colours, radius_px: float = 1.5,
+                  depth_cue: float = 0.45) -> np.ndarray:
+    """Points as round splats, nearest on top; colours BGR (n, 3) or one colour. Far
+    points are blended towards the background by up to ``depth_cue``."""
+    factor = SUPERSAMPLE
+    size = camera.size * factor
+    image = _blank(size)
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    finite = np.all(np.isfinite(points), axis=1)
+    points = points[finite]
+    if len(points) == 0:
+        return _shrink(image, camera.size)
+    colours = np.broadcast_to(np.asarray(colours, dtype=float).reshape(-1, 3),
+                              (len(finite), 3))[finite]
+    pixels, depth = camera.project(points, factor)
+    span = np.ptp(depth) if len(depth) > 1 else 0.0
+    nearness = (depth - depth.min()) / span if span > 0 else np.ones_like(depth)
+    blend = depth_cue * (1.0 - nearness)[:, None]
+    shaded = colours * (1.0 - blend) + np.asarray(BACKGROUND, dtype=float) * blend
+    # Z-buffer of the splat centres: the nearest point of each pixel (first occurrence in
+    # nearest-first order), then the splat disk by shifting that buffer over the offsets,
+    # keeping the nearer value at every pixel (whole-image operations, no loop per point).
+    base = np.round(pixels).astype(np.int64)
+    inside = (base[:, 0] >= 0) & (base[:, 0] < size) & (base[:, 1] >= 0) & (base[:, 1] < size)
+    base, depth, shaded = base[inside], depth[inside], shaded[inside]
+    order = np.argsort(-depth, kind='stable')
+    flat = (base[:, 1] * size + base[:, 0])[order]
+    _, first = np.unique(flat, return_index=True)
+    chosen = order[first]
+    centre_depth = np.full(size * size, -np.inf)
+    centre_colour = np.zeros((size * size, 3), dtype=np.uint8)
+    centre_depth[flat[first]] = depth[chosen]
+    centre_colour[flat[first]] = np.clip(shaded[chosen], 0, 255).astype(np.uint8)
+    centre_depth = centre_depth.reshape(size, size)
+    centre_colour = centre_colour.reshape(size, size, 3)
+    radius = max(radius_px * factor, 0.5)
+    r = int(math.ceil(radius))
+    best = np.full((size, size), -np.inf)
+    for dx in range(-r, r + 1):
+        for dy in range(-r, r + 1):
+            if dx * dx + dy * dy > radius * radius + 0.25:
+                continue
+            # Pixel (y, x) takes the centre at (y - dy, x - dx).
+            ys = slice(max(dy, 0), size + min(dy, 0))
+            xs = slice(max(dx, 0), size + min(dx, 0))
+            ys_src = slice(max(-dy, 0), size + min(-dy, 0))
+            xs_src = slice(max(-dx, 0), size + min(-dx, 0))
+            source = centre_depth[ys_src, xs_src]
+            target = best[ys, xs]
+            nearer = source > target
+            target[nearer] = source[nearer]
+            image[ys, xs][nearer] = centre_colour[ys_src, xs_src][nearer]
+    return _shrink(image, camera.size)
+
+
+def _text(image, text, origin, scale=0.5, colour=TEXT, thickness=1) -> None:
+    cv2.putText(image, text, (int(origin[0]), int(origin[1])), FONT, scale, colour, thickness,
+                cv2.LINE_AA)
+
+
+def _text_width(text, scale=0.5, thickness=1) -> int:
+    return cv2.getTextSize(text, FONT, scale, thickness)[0][0]
+
+
+def _nice_length(target: float) -> float:
+    """1, 2 or 5 times a power of ten, at most ``target`` (metres)."""
+    power = 10.0 ** math.floor(math.log10(target))
+    for step in (5.0, 2.0, 1.0):
+        if step * power <= target:
+            return step * power
+    return power
+
+
+def _length_label(metres: float) -> str:
+    if metres >= 0.01:
+        cm = metres * 100
+        return f'{cm:g} cm'
+    return f'{metres * 1000:g} mm'
+
+
+def annotate(image: np.ndarray, camera: Camera, title: str | None = None,
+             subtitle: str | None = None, frame_label: str | None = None) -> np.ndarray:
+    """A panel's labels: title, subtitle, a scale bar (cm) and the data frame's axes."""
+    image = image.copy()
+    size = camera.size
+    if title:
+        _text(image, title, (10, 22), 0.6, TEXT, 1)
+    if subtitle:
+        _text(image, subtitle, (10, 42), 0.45, (90, 90, 90))
+    # Scale bar, bottom left.
+    length = _nice_length(0.28 * size / camera.scale)
+    bar = int(round(length * camera.scale))
+    x0, y0 = 14, size - 18
+    cv2.line(image, (x0, y0), (x0 + bar, y0), TEXT, 2, cv2.LINE_AA)
+    for x in (x0, x0 + bar):
+        cv2.line(image, (x, y0 - 5), (x, y0 + 5), TEXT, 1, cv2.LINE_AA)
+    label = _length_label(length)
+    _text(image, label, (x0 + (bar - _text_width(label, 0.45)) / 2, y0 - 8), 0.45)
+    # Axes of the data frame, bottom right.
+    origin = np.array([size - 52.0, size - 46.0])
+    directions = camera.direction(np.eye(3))
+    longest = np.linalg.norm(directions, axis=1).max()
+    colours = [(40, 40, 210), (40, 160, 40), (210, 90, 30)]  # x red, y green, z blue (BGR)
+    for axis, name in enumerate('xyz'):
+        d = directions[axis] / longest * 30.0
+        end = origin + d
+        if np.linalg.norm(d) < 3.0:  # pointing at (or away from) the viewer
+            cv2.circle(image, tuple(int(v) for v in origin), 4, colours[axis], 1, cv2.LINE_AA)
+            end = origin + np.array([6.0, -6.0 - 8 * axis])
+        else:
+            cv2.arrowedLine(image, tuple(int(v) for v in origin), tuple(int(v) for v in end),
+                            colours[axis], 2, cv2.LINE_AA, tipLength=0.25)
+        _text(image, name, end + np.array([3.0, 4.0]), 0.45, colours[axis])
+    if frame_label:
+        _text(image, frame_label, (size - _text_width(frame_label, 0.4) - 8, 18), 0.4,
+              (110, 110, 110))
+    cv2.rectangle(image, (0, 0), (size - 1, size - 1), (205, 205, 205), 1)
+    return image
+
+
+def hstack(images: list[np.ndarray]) -> np.ndarray:
+    height = max(image.shape[0] for image in images)
+    padded = [np.pad(image, ((0, height - image.shape[0]), (0, 0), (0, 0)),
+                     constant_values=255) for image in images]
+    return np.concatenate(padded, axis=1)
+
+
+def titled(body: np.ndarray, title: str, footer: np.ndarray | None = None) -> np.ndarray:
+    """``body`` under a title bar, with an optional footer strip (legend) below."""
+    width = body.shape[1]
+    bar = np.full((40, width, 3), 255, dtype=np.uint8)
+    _text(bar, title, (12, 27), 0.7, TEXT, 2)
+    parts = [bar, body]
+    if footer is not None:
+        if footer.shape[1] < width:
+            footer = np.pad(footer, ((0, 0), (0, width - footer.shape[1]), (0, 0)),
+                            constant_values=255)
+        parts.append(footer[:, :width])
+    return np.concatenate(parts, axis=0)
+
+
+def grid_figure(panels: list[np.ndarray], columns: int, title: str,
+                footer: np.ndarray | None = None) -> np.ndarray:
+    """Panels (equal squares) in rows of ``columns``, under a title."""
+    size = panels[0].shape[0]
+    rows = []
+    for start in range(0, len(panels), columns):
+        row = panels[start:start + columns]
+        row = row + [np.full((size, size, 3), 255, dtype=np.uint8)] * (columns - len(row))
+        rows.append(np.concatenate(row, axis=1))
+    return titled(np.concatenate(rows, axis=0), title, footer)
+
+
+def probability_legend(width: int, thresholds=(0.6, 0.8)) -> np.ndarray:
+    """A horizontal colour bar: occupancy probability 0 .. 1, darker = more probable."""
+    strip = np.full((48, width, 3), 255, dtype=np.uint8)
+    label = 'occupancy probability (darker = more probable)'
+    _text(strip, label, (12, 30), 0.45)
+    x0 = 24 + _text_width(label, 0.45)
+    x1 = min(width - 20, x0 + 320)
+    if x1 - x0 < 60:
+        return strip
+    ramp = probability_colours(np.linspace(0.0, 1.0, x1 - x0))
+    strip[12:26, x0:x1] = ramp[None]
+    cv2.rectangle(strip, (x0, 12), (x1 - 1, 25), (150, 150, 150), 1)
+    for value in sorted({0.0, *thresholds, 1.0}):
+        x = int(round(x0 + value * (x1 - x0 - 1)))
+        cv2.line(strip, (x, 26), (x, 30), TEXT, 1)
+        text = f'{value:g}'
+        _text(strip, text, (x - _text_width(text, 0.4) / 2, 42), 0.4)
+    return strip
+
+
+def key_legend(width: int, entries: list[tuple[tuple[int, int, int], str]]) -> np.ndarray:
+    """A strip of coloured squares (BGR) with labels."""
+    strip = np.full((34, width, 3), 255, dtype=np.uint8)
+    x = 12
+    for colour, label in entries:
+        cv2.rectangle(strip, (x, 10), (x + 14, 24), tuple(int(c) for c in colour), -1)
+        cv2.rectangle(strip, (x, 10), (x + 14, 24), (120, 120, 120), 1)
+        _text(strip, label, (x + 20, 22), 0.45)
+        x += 20 + _text_width(label, 0.45) + 22
+    return strip

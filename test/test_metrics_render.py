@@ -1,0 +1,501 @@
+"""Map metrics against ground truth, the truth files, and the map pictures.
+
+Metrics on hand-made cases whose values are worked out in the comments; ``map_metrics``
+and ``render_map`` on maps that ``build_map`` made from sphere bags, with synthetic truth
+files written here (no simulator needed).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+
+import cv2
+import numpy as np
+import pytest
+
+from inhand_tools import render
+from inhand_tools.ground_truth import (TRUTH_KEYS, default_frame, in_frame, load_truth,
+                                       save_truth, truth_path_for_bag)
+from inhand_tools.map_metrics import load_map
+from inhand_tools.map_metrics import main as map_metrics_main
+from inhand_tools.metrics import (Lattice, SurfaceTruth, cell_indices, explored_mask,
+                                  infer_lattice, map_metrics, point_metrics)
+from inhand_tools.render_map import main as render_map_main
+from inhand_tools.render_map import regions
+from pose_sessions import sphere_session, sphere_surface_points, write_pose_bag
+from ros_helpers import WORKSPACE, executable_path
+
+CONFIG = WORKSPACE / 'config' / 'mapping.yaml'
+STATIC_CONFIG = WORKSPACE / 'config' / 'mapping_static.yaml'
+H = 0.005  # cell edge of every hand-made case
+RADIUS = 0.04
+
+
+def fibonacci_sphere(count: int, radius: float, centre=(0.0, 0.0, 0.0)):
+    """Deterministic samples uniform by area on a sphere, and their normals."""
+    i = np.arange(count) + 0.5
+    polar = np.arccos(1.0 - 2.0 * i / count)
+    azimuth = math.pi * (1.0 + math.sqrt(5.0)) * i
+    normals = np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar),
+                        np.cos(polar)], axis=1)
+    return radius * normals + np.asarray(centre), normals
+
+
+def voxel_centres(points, lattice: Lattice) -> np.ndarray:
+    cells = np.unique(cell_indices(points, lattice), axis=0)
+    return np.asarray(lattice.origin) + (cells + 0.5) * lattice.resolution
+
+
+@pytest.fixture(scope='module')
+def sphere_truth():
+    points, normals = fibonacci_sphere(200_000, RADIUS)
+    # Explored everywhere: contacts all over the sphere.
+    return SurfaceTruth(points, points[::40], normals, explored_radius=0.005)
+
+
+@pytest.fixture(scope='module')
+def perfect_sphere_map():
+    """Cells holding the sphere's surface, found from other samples than the truth's."""
+    other, _ = fibonacci_sphere(333_333, RADIUS)
+    return voxel_centres(other, Lattice(H))
+
+
+# ------------------------------------------------------------------ metrics by hand
+
+def test_perfect_sphere_map_scores_one(sphere_truth, perfect_sphere_map):
+    scores = map_metrics(perfect_sphere_map, np.full(len(perfect_sphere_map), 0.9), Lattice(H),
+                         sphere_truth)
+    assert scores['occupied_cells'] == len(perfect_sphere_map) > 1000
+    for key in ('precision_at_5mm', 'recall_at_5mm', 'fscore_at_5mm', 'cell_precision',
+                'cell_recall', 'cell_fscore'):
+        assert scores[key] >= 0.999, (key, scores[key])
+    assert scores['iou'] >= 0.95
+    # A cell centre is at most half a diagonal (4.3 mm) from the surface it holds; on
+    # average much less: under half a cell.
+    assert scores['chamfer_mm'] < H * 1000 / 2
+    assert scores['com_error_mm'] < 0.05  # the voxelisation is symmetric about the centre
+    assert abs(scores['normal_offset_mm']) < 0.3
+    assert scores['stray_cells'] == scores['off_surface_cells'] == 0
+    assert 0.1 < scores['sample_spacing_mm'] < 0.5
+
+
+def test_centre_of_mass_error_of_a_shifted_map_is_the_shift(sphere_truth, perfect_sphere_map):
+    shift = np.array([0.003, -0.004, 0.0012])
+    scores = map_metrics(perfect_sphere_map + shift, np.full(len(perfect_sphere_map), 0.95),
+                         Lattice(H), sphere_truth)
+    assert scores['com_error_mm'] == pytest.approx(np.linalg.norm(shift) * 1000, abs=0.05)
+    assert np.allclose(np.subtract(scores['com_map'], scores['com_truth']), shift, atol=5e-5)
+
+
+def test_centre_of_mass_is_weighted_by_probability(sphere_truth):
+    # Two cells on the surface at +-x; weights 0.9 and 0.81: CoM at x = R (0.9 - 0.81) / 1.71.
+    centres = np.array([[RADIUS, 0.0, 0.0], [-RADIUS, 0.0, 0.0]])
+    scores = map_metrics(centres, [0.9, 0.81], Lattice(H), sphere_truth)
+    assert scores['com_map'][0] == pytest.approx(RADIUS * 0.09 / 1.71)
+    assert scores['com_error_mm'] == pytest.approx(RADIUS * 0.09 / 1.71 * 1000, abs=0.01)
+
+
+def plane_case():
+    """20 lines of samples on the plane z = 2.5 mm (the cell-centre plane of the cell layer
+    k = 0), at y = 2.5 + 5 j mm, x = 0.05 + 0.1 i mm (1,000 per line, x in [0, 100) mm); all
+    explored. The perfect map: the 20 x 20 cells of that layer."""
+    x = (np.arange(1000) + 0.5) * 1e-4
+    y = 0.0025 + H * np.arange(20)
+    xx, yy = np.meshgrid(x, y, indexing='ij')
+    surface = np.stack([xx.ravel(), yy.ravel(), np.full(xx.size, 0.0025)], axis=1)
+    normals = np.tile([0.0, 0.0, 1.0], (len(surface), 1))
+    ci, cj = np.meshgrid(np.arange(20), np.arange(20), indexing='ij')
+    centres = np.stack([(ci.ravel() + 0.5) * H, (cj.ravel() + 0.5) * H,
+                        np.full(ci.size, 0.0025)], axis=1)
+    return surface, normals, centres
+
+
+def test_plane_map_shifted_by_one_centimetre_scores_as_computed_by_hand():
+    surface, normals, centres = plane_case()
+    truth = SurfaceTruth(surface, surface, normals, explored_radius=0.005)
+    perfect = map_metrics(centres, np.full(len(centres), 0.9), Lattice(H), truth)
+    assert perfect['fscore_at_5mm'] == 1.0 and perfect['iou'] == 1.0
+    assert perfect['chamfer_mm'] < 1.3
+
+    shifted = map_metrics(centres + [0.01, 0.0, 0.0], np.full(len(centres), 0.9), Lattice(H),
+                          truth)
+    # Centre columns now at x = 12.5 ... 107.5 mm. Precision @ 5 mm: the column at 102.5 mm
+    # is 2.55 mm from the last sample (99.95 mm), the one at 107.5 mm is 7.55 mm away:
+    # 19 of 20 columns.
+    assert shifted['precision_at_5mm'] == pytest.approx(19 / 20)
+    # Recall @ 5 mm: samples left of 7.5 mm are more than 5 mm from every centre (the
+    # nearest is at 12.5 mm on the same line; other lines are 5 mm away sideways):
+    # 75 of each 1,000.
+    assert shifted['recall_at_5mm'] == pytest.approx(925 / 1000)
+    assert shifted['fscore_at_5mm'] == pytest.approx(2 * 0.95 * 0.925 / (0.95 + 0.925))
+    # Map -> surface: 18 columns 0.05 mm from the nearest sample (centres fall halfway
+    # between samples), then 2.55 and 7.55 mm.
+    assert shifted['map_to_surface_mm'] == pytest.approx((18 * 0.05 + 2.55 + 7.55) / 20)
+    # Cells: occupied x-indices 2..21 against the surface's 0..19. IoU 18/22; with the
+    # one-cell tolerance index 21 is wrong (precision 19/20) and index 0 is not recalled
+    # (recall 19/20).
+    assert shifted['iou'] == pytest.approx(18 / 22)
+    assert shifted['cell_precision'] == pytest.approx(19 / 20)
+    assert shifted['cell_recall'] == pytest.approx(19 / 20)
+    assert shifted['com_error_mm'] == pytest.approx(10.0, abs=1e-6)
+    assert shifted['normal_offset_mm'] == pytest.approx(0.0, abs=1e-9)
+    lifted = map_metrics(centres + [0.0, 0.0, 0.003], np.full(len(centres), 0.9), Lattice(H),
+                         truth)
+    assert lifted['normal_offset_mm'] == pytest.approx(3.0)
+
+
+def test_stray_cells_are_counted():
+    surface, normals, centres = plane_case()
+    strays = np.array([[0.0525, 0.0525, 0.0225],   # 20 mm above the plane: cell (10, 10, 4)
+                       [0.0325, 0.0325, 0.0055]])  # 3 mm above: not a stray for the metric
+    truth = SurfaceTruth(surface, surface, normals, strays, explored_radius=0.005)
+    extra = np.array([[10, 10, 4],   # at the far stray: counted
+                      [11, 9, 5],    # a diagonal neighbour of its cell: counted
+                      [10, 10, 6],   # two cells away: not counted
+                      [6, 6, 1],     # at the near stray (3 mm off): not counted
+                      [10, 11, 4]])  # next to the far stray but below the threshold
+    cells = np.concatenate([centres, (extra + 0.5) * H])
+    probabilities = np.concatenate([np.full(len(centres), 0.9), [0.97, 0.85, 0.9, 0.9, 0.7]])
+    scores = map_metrics(cells, probabilities, Lattice(H), truth, threshold=0.8)
+    assert scores['strays'] == 2 and scores['strays_far_from_surface'] == 1
+    assert scores['stray_cells'] == 2
+    # Off the surface by more than a cell: the three cells above layer k = 1.
+    assert scores['off_surface_cells'] == 3
+    assert map_metrics(cells, probabilities, Lattice(H), truth, threshold=0.6)['stray_cells'] == 3
+
+
+def test_explored_part_and_its_cells():
+    surface, normals, _ = plane_case()
+    contact = np.array([[0.05, 0.0525, 0.0025]])
+    mask = explored_mask(surface, contact, 0.005)
+    # On the contact's line, x in [45, 55] mm: samples 45.05 ... 54.95 mm (100 of them); the
+    # lines 5 mm to each side hold no sample at exactly x = 50 mm, so none of theirs.
+    assert mask.sum() == 100
+    assert np.array_equal(mask, np.linalg.norm(surface - contact, axis=1) <= 0.005)
+    truth = SurfaceTruth(surface, contact, normals, explored_radius=0.005)
+    # Those samples lie in cells x = 9 and 10; a map holding only the contact's cell
+    # (x = 10) recalls both at the one-cell tolerance.
+    scores = map_metrics([[0.0525, 0.0525, 0.0025]], [0.9], Lattice(H), truth)
+    assert scores['explored_cells'] == 2 and scores['cell_recall'] == 1.0
+    assert scores['iou'] == pytest.approx(1 / 2)
+    assert explored_mask(surface, np.empty((0, 3)), 0.005).sum() == 0
+
+
+def test_empty_map_scores_zero_or_undefined(sphere_truth):
+    scores = map_metrics(np.empty((0, 3)), np.empty(0), Lattice(H), sphere_truth)
+    assert scores['occupied_cells'] == 0 and scores['recall_at_5mm'] == 0.0
+    assert math.isnan(scores['precision_at_5mm']) and math.isnan(scores['chamfer_mm'])
+    with pytest.raises(ValueError):
+        map_metrics(np.zeros((2, 3)), [0.9], Lattice(H), sphere_truth)
+
+
+def test_registered_point_metrics(sphere_truth):
+    rng = np.random.default_rng(2)
+    on_surface = sphere_surface_points(900, RADIUS, seed=4)
+    off = sphere_surface_points(100, RADIUS + 0.01, seed=5)  # 10 mm outside
+    scores = point_metrics(np.concatenate([on_surface, off, [[np.nan, 0.0, 0.0]]]),
+                           sphere_truth)
+    assert scores['points'] == 1000
+    assert scores['precision_at_5mm'] == pytest.approx(0.9)
+    assert scores['median_to_surface_mm'] < 0.3
+    assert scores['p95_to_surface_mm'] == pytest.approx(10.0, abs=0.3)
+    noisy = on_surface + rng.normal(0, 0.001, on_surface.shape)
+    assert point_metrics(noisy, sphere_truth)['precision_at_5mm'] == 1.0
+
+
+def test_lattice_inferred_from_centres():
+    centres = (np.array([[3, 4, 5], [4, 4, 5], [3, 6, 7]]) + 0.5) * 0.005 + [0.001, 0.0, -0.002]
+    lattice = infer_lattice(centres.astype(np.float32))
+    assert lattice.resolution == pytest.approx(0.005)
+    assert np.array_equal(cell_indices(centres, lattice) - cell_indices(centres, lattice)[0],
+                          [[0, 0, 0], [1, 0, 0], [0, 2, 2]])
+    with pytest.raises(ValueError, match='single cell'):
+        infer_lattice(centres[:1])
+
+
+# ------------------------------------------------------------------ truth files
+
+def write_truth(path, surface_centre, contacts, contact_times, poses, static=False,
+                strays=None, count=100_000, **overrides):
+    surface, normals = fibonacci_sphere(count, RADIUS, surface_centre)
+    times = np.array([t for t, _, _ in poses])
+    arrays = dict(object_name='sphere', static=static, rate=240.0, seed=0,
+                  settings={'radius': RADIUS}, surface_points=surface, surface_normals=normals,
+                  contacts=np.asarray(contacts, dtype=float),
+                  contact_times=np.asarray(contact_times, dtype=float),
+                  stray_points=np.empty((0, 3)) if strays is None else strays[0],
+                  stray_times=np.empty(0) if strays is None else strays[1],
+                  object_times=times, object_positions=np.array([p for _, p, _ in poses]),
+                  object_quaternions=np.array([q for _, _, q in poses]))
+    arrays.update(overrides)
+    return save_truth(path, **arrays)
+
+
+def test_truth_file_round_trip_and_tracker_frame(tmp_path):
+    quarter = np.array([0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)])  # 90 deg z
+    poses = [(0.0, np.array([0.25, 0.0, 0.05]), quarter),
+             (1.0, np.array([0.35, 0.0, 0.05]), quarter)]
+    path = write_truth(tmp_path / 'bag.truth.npz', (0.0, 0.0, 0.0), [[0.04, 0.0, 0.0]], [0.5],
+                       poses, strays=(np.array([[0.0, 0.06, 0.0]]), np.array([1.0])))
+    assert truth_path_for_bag(tmp_path / 'bag') == path
+    truth = load_truth(path)
+    assert truth.object_name == 'sphere' and truth.static is False and truth.rate == 240.0
+    assert truth.settings == {'radius': RADIUS} and truth.frame == 'object'
+    assert default_frame(truth) == 'object'
+    assert in_frame(truth, 'object') is truth
+    moved = in_frame(truth, 'tracker')
+    # Surface by the first pose: (x, y, z) -> (0.25 - y, x, z + 0.05).
+    first = truth.surface_points[0]
+    assert np.allclose(moved.surface_points[0], [0.25 - first[1], first[0], first[2] + 0.05])
+    assert np.allclose(moved.surface_normals[0], [-truth.surface_normals[0][1],
+                                                 truth.surface_normals[0][0],
+                                                 truth.surface_normals[0][2]])
+    # The contact at t = 0.5 by the pose halfway: position 0.30.
+    assert np.allclose(moved.contacts[0], [0.30, 0.04, 0.05])
+    assert np.allclose(moved.stray_points[0], [0.35 - 0.06, 0.0, 0.05])
+    assert truth.object_motion == pytest.approx(0.1)
+    with pytest.raises(ValueError, match='frame must be one of'):
+        in_frame(truth, 'camera')
+
+
+def test_bad_truth_files_are_refused_clearly(tmp_path):
+    with pytest.raises(ValueError, match='no such truth file'):
+        load_truth(tmp_path / 'absent.truth.npz')
+    (tmp_path / 'text.npz').write_text('hello')
+    with pytest.raises(ValueError, match='not a truth file'):
+        load_truth(tmp_path / 'text.npz')
+    np.savez(tmp_path / 'partial.npz', surface_points=np.zeros((5, 3)), contacts=np.zeros((1, 3)))
+    with pytest.raises(ValueError, match='missing key.*object_name.*stray_points'):
+        load_truth(tmp_path / 'partial.npz')
+    poses = [(0.0, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))]
+    bad = write_truth(tmp_path / 'bad.npz', (0, 0, 0), np.zeros((3, 2)), np.zeros(3), poses,
+                      count=200)
+    with pytest.raises(ValueError, match=r"'contacts' has shape \(3, 2\)"):
+        load_truth(bad)
+    bad = write_truth(tmp_path / 'bad2.npz', (0, 0, 0), [[0.04, 0, 0]], [0.0, 1.0], poses,
+                      count=200)
+    with pytest.raises(ValueError, match='contacts has 1 rows but contact_times has 2'):
+        load_truth(bad)
+    assert len(TRUTH_KEYS) == 14
+
+
+# ------------------------------------------------------------------ the CLIs on real maps
+
+def build_map(bag, config, out, name):
+    result = subprocess.run([executable_path('build_map'), str(bag), '--config', str(config),
+                             '--output-dir', str(out), '--name', name, '--quiet'],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    return out / f'{name}.npz'
+
+
+def session_truth(path, frames, centre, seed, static, strays=None):
+    spots = sphere_surface_points(120, RADIUS, seed) + centre
+    contacts, times = [], []
+    for k, (t, _) in enumerate(frames):  # the spot each finger touches (pose_sessions' rule)
+        for f in range(3):
+            contacts.append(spots[(k * 7 + f * 53) % len(spots)])
+            times.append(t)
+    poses = [(t, frame['object'][0], frame['object'][1]) for t, frame in frames]
+    return write_truth(path, centre, contacts, times, poses, static=static, strays=strays)
+
+
+@pytest.fixture(scope='module')
+def sessions(tmp_path_factory):
+    """A moving (tracked) and a still (static) sphere session: bags, maps, truth files."""
+    root = tmp_path_factory.mktemp('metrics')
+    out = {}
+    for name, moving, config in (('moving', True, CONFIG), ('still', False, STATIC_CONFIG)):
+        frames, centre = sphere_session(seconds=3.0, surface_points=120, moving=moving, seed=1)
+        bag = write_pose_bag(root / name, frames)
+        strays = (centre + np.array([[0.0, 0.0, -0.07]]), np.array([frames[0][0]]))
+        truth = session_truth(truth_path_for_bag(bag), frames, centre, 1, not moving, strays)
+        out[name] = {'bag': bag, 'truth': truth, 'map': build_map(bag, config, root, name),
+                     'frames': frames, 'centre': centre, 'root': root}
+    return out
+
+
+def test_map_metrics_on_a_tracked_build_map(sessions, tmp_path, capsys):
+    s = sessions['moving']
+    out = tmp_path / 'metrics.json'
+    code = map_metrics_main([str(s['map']), '--truth', str(s['truth']), '--bag', str(s['bag']),
+                             '--threshold', '0', '0.8', '--json', str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert 'compared in the object frame' in printed.out
+    assert 'F-score @ 5 mm' in printed.out and 'map > 0.8' in printed.out
+    document = json.loads(out.read_text())
+    assert document['frame'] == 'object' and document['map_kind'] == 'npz'
+    occupied = document['thresholds']['0.8']
+    grid_cells = int((load_map(s['map']).probabilities > 0.8).sum())
+    assert occupied['occupied_cells'] == grid_cells > 20
+    # Every occupied cell holds spots of the sphere: within one cell, and its centre within
+    # half a diagonal (4.3 mm) of the surface.
+    assert occupied['cell_precision'] == 1.0 and occupied['precision_at_5mm'] == 1.0
+    assert occupied['off_surface_cells'] == 0 and occupied['stray_cells'] == 0
+    assert occupied['strays_far_from_surface'] == 1
+    assert occupied['com_error_mm'] < 10
+    assert document['thresholds']['0']['cell_recall'] == 1.0  # every touched cell
+    points = document['points']
+    assert points['points'] == 3 * len(s['frames'])
+    assert points['precision_at_5mm'] == 1.0 and points['median_to_surface_mm'] < 0.5
+
+
+def test_map_metrics_static_session_in_the_tracker_frame(sessions, capsys):
+    s = sessions['still']
+    # The truth says static: the map is compared in the tracker frame, the points are
+    # registered statically; the truth is the sidecar of --bag.
+    code = map_metrics_main([str(s['map']), '--bag', str(s['bag'])])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert 'static session' in printed.out and 'tracker frame' in printed.out
+    assert '(static)' in printed.out
+    row = next(line for line in printed.out.splitlines() if line.startswith('precision @ 5 mm'))
+    assert row.split()[-1] == '1.000'
+    # The same map read as if it were in the object frame misses the surface by 25 cm,
+    # and says so.
+    code = map_metrics_main([str(s['map']), '--truth', str(s['truth']), '--frame', 'object'])
+    printed = capsys.readouterr()
+    assert code == 0 and 'try --frame tracker' in printed.err
+
+
+def test_map_metrics_reads_ply_and_a_recorded_cloud_alike(sessions, tmp_path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    from inhand_common.point_cloud import serialize_point_cloud2
+    from inhand_mapping.clouds import map_cells
+    from inhand_mapping.map_io import load_npz
+    s = sessions['moving']
+    grid, _ = load_npz(s['map'])
+    bag = tmp_path / 'recorded'
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection('/occupancy/occupied', 'sensor_msgs/msg/PointCloud2',
+                                           typestore=store)
+        writer.write(connection, 1, serialize_point_cloud2(map_cells(grid, 0.5)[:3], 'object',
+                                                           0, 1))
+        writer.write(connection, 2, serialize_point_cloud2(map_cells(grid, 0.8), 'object', 0, 2))
+    results = {}
+    for name, source in (('npz', s['map']), ('ply', s['map'].with_suffix('.ply')),
+                         ('bag', bag)):
+        out = tmp_path / f'{name}.json'
+        assert map_metrics_main([str(source), '--truth', str(s['truth']), '--json',
+                                 str(out)]) == 0
+        results[name] = json.loads(out.read_text())['thresholds']['0.8']
+    cells = load_map(bag)
+    assert cells.kind == 'bag cloud' and not cells.complete and len(cells.centres) > 3
+    assert cells.lattice.resolution == pytest.approx(0.005)
+    for key in ('occupied_cells', 'iou', 'cell_precision', 'cell_recall', 'fscore_at_5mm'):
+        assert results['ply'][key] == pytest.approx(results['npz'][key]), key
+        assert results['bag'][key] == pytest.approx(results['npz'][key]), key
+    assert results['bag']['chamfer_mm'] == pytest.approx(results['npz']['chamfer_mm'], abs=1e-3)
+
+
+def test_map_metrics_executable_and_bad_inputs(sessions, tmp_path):
+    s = sessions['moving']
+    result = subprocess.run([executable_path('map_metrics'), str(s['map']), '--truth',
+                             str(s['truth'])], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert 'voxel IoU' in result.stdout and 'Chamfer distance (mm)' in result.stdout
+
+    def refused(*args):
+        completed = subprocess.run([executable_path('map_metrics'), *map(str, args)],
+                                   capture_output=True, text=True, timeout=60)
+        assert completed.returncode == 2, completed.stdout + completed.stderr
+        return completed.stderr
+
+    assert 'no such map file' in refused(tmp_path / 'nothing.npz', '--truth', s['truth'])
+    # The truth file given as the map: a foreign NPZ.
+    assert 'ground-truth file, not a map' in refused(s['truth'], '--truth', s['truth'])
+    np.savez(tmp_path / 'other.npz', a=np.zeros(3))
+    assert 'not a map saved by this software' in refused(tmp_path / 'other.npz', '--truth',
+                                                         s['truth'])
+    (tmp_path / 'notes.txt').write_text('not a map')
+    assert 'not a map' in refused(tmp_path / 'notes.txt', '--truth', s['truth'])
+    assert 'no ground truth' in refused(s['map'])
+    assert 'missing key' in refused(s['map'], '--truth', s['map'])
+    assert 'no map cloud' in refused(s['bag'], '--truth', s['truth'])
+    assert 'no such bag' in refused(s['map'], '--truth', s['truth'], '--bag',
+                                    tmp_path / 'absent')
+    assert 'must be in [0, 1)' in refused(s['map'], '--truth', s['truth'], '--threshold', '1.5')
+
+
+# ------------------------------------------------------------------ pictures
+
+def test_higher_probability_cubes_are_darker():
+    cells = voxel_centres(sphere_surface_points(3000, 0.03, seed=0), Lattice(H))
+    camera = render.Camera(render.OBLIQUE, np.zeros(3), 0.035, 240)
+    means = []
+    for probability in (0.3, 0.7, 0.85, 0.97):
+        image = render.render_cells(camera, cells, H, render.probability_colours(
+            np.full(len(cells), probability)))
+        drawn = np.any(image < 250, axis=2)
+        assert drawn.mean() > 0.2
+        means.append(image[drawn].mean())
+    assert means == sorted(means, reverse=True)
+    assert means[0] - means[-1] > 60
+
+
+def test_regions_most_explored_and_first_touched():
+    hits = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 100])
+    first = np.array([np.nan, 5, 4, 3, 2, 1, 6, 7, 8, 9, 0.0])
+    most, earliest, hit_cut, first_cut = regions(hits, first, 0.2, 0.2)
+    assert hit_cut == 9 and np.flatnonzero(most).tolist() == [9, 10]
+    assert first_cut == 1.0 and np.flatnonzero(earliest).tolist() == [5, 10]
+
+
+def test_render_map_writes_the_pictures(sessions, tmp_path, capsys):
+    s = sessions['moving']
+    out = tmp_path / 'pictures'
+    code = render_map_main([str(s['map']), '--bag', str(s['bag']), '--output', str(out),
+                            '--size', '200'])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    names = ['raw_points', 'registered_points', 'map_above_0', 'map_above_0.6',
+             'map_above_0.8', 'map_thresholds', 'regions', 'truth', 'figure']
+    listed = printed.out.split()
+    for name in names:
+        path = out / f'{name}.png'
+        assert str(path) in listed
+        image = cv2.imread(str(path))
+        assert image is not None and image.ndim == 3
+        if name in ('map_thresholds',):
+            assert image.shape[1] == 3 * 200
+        elif name == 'figure':
+            assert image.shape[1] == 4 * 200  # 7 panels in rows of 4
+        else:
+            assert image.shape[1] == 2 * 200  # oblique and side view
+        assert 200 + 40 < image.shape[0] < 3 * 200
+        assert (image < 200).any(axis=2).mean() > 0.01, name  # something was drawn
+    # Darker = more probable: the cubes above 0.8 are darker than all the touched cells.
+    low = cv2.imread(str(out / 'map_above_0.png'))[40:240, :200]
+    high = cv2.imread(str(out / 'map_above_0.8.png'))[40:240, :200]
+    mean_low = low[np.any(low < 245, axis=2)].mean()
+    mean_high = high[np.any(high < 245, axis=2)].mean()
+    assert mean_high < mean_low - 10
+
+
+def test_render_map_executable_and_bad_inputs(sessions, tmp_path):
+    s = sessions['still']
+    result = subprocess.run([executable_path('render_map'), str(s['map'].with_suffix('.ply')),
+                             '--output', str(tmp_path / 'ply'), '--size', '160'],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    written = [line for line in result.stdout.splitlines() if line.endswith('.png')]
+    # No bag: no point pictures; a PLY has no sidecar truth: no truth picture.
+    assert len(written) == 6
+    for line in written:
+        assert cv2.imread(line).shape[1] in (160 * 2, 160 * 3)
+
+    def refused(*args):
+        completed = subprocess.run([executable_path('render_map'), *map(str, args)],
+                                   capture_output=True, text=True, timeout=60)
+        assert completed.returncode == 2, completed.stdout + completed.stderr
+        return completed.stderr
+
+    assert 'no such map file' in refused(tmp_path / 'absent.npz', '--output', tmp_path)
+    assert 'ground-truth file, not a map' in refused(s['truth'], '--output', tmp_path)
+    assert '--size 10' in refused(s['map'], '--output', tmp_path, '--size', '10')
+    assert 'must be in [0, 1)' in refused(s['map'], '--output', tmp_path, '--thresholds', '2')
