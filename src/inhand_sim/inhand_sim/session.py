@@ -1,0 +1,454 @@
+"""Simulated exploration sessions: the driver's bag plus exact ground truth beside it.
+
+A session is
+
+* **static**: the object stands on the table in front of the transmitter, its centre at
+  ``static_centre`` (default [0.25, 0.0, 0.05] m, the centre of config/mapping_static.yaml's
+  workspace) in the tracker frame ``polhemus_source`` (x forward, y right, z down: the
+  object's up is the tracker's -z). The other hand holds it still at its top
+  (``ObjectModel.static_grip``); no object sensor is published. Stations: thumb, index,
+  middle.
+* **moving** (non-static): the other hand holds the object in the air around
+  ``moving_centre``; it drifts (a few cm) and sways (about 10 degrees) all the time, and at
+  each **re-grasp** (about every ``regrasp_interval`` s; at least one when the session is
+  long enough) the exploring fingers all leave the object, the other hand turns it by
+  60-120 degrees and takes it at another place (the next of ``ObjectModel.moving_grips``),
+  and the exploration resumes. The object sensor (station ``object``) is the OBJECT frame;
+  optionally a second one (``object2``) is rigidly attached at
+  ``ObjectModel.second_sensor``. Stations: thumb, index, middle, object (, object2).
+
+Fingertip positions in the tracker frame are the object pose applied to the object-frame
+fingertip positions of :mod:`inhand_sim.exploration`, plus tracker noise (Gaussian per axis,
+``noise_mm``, and rare outliers of 1-2 cm). Object sensors get their own small noise
+(``object_noise_mm`` per axis, ``object_noise_deg`` per Euler angle). Fingertip
+orientations: the sensor's z axis along the outward surface normal (nail away from the
+surface).
+
+Files (:func:`write_session`)
+-----------------------------
+``<output>/``: a rosbag2 bag (MCAP, rosbags writer) holding exactly the driver's topics:
+``/polhemus/<name>/pose`` of type ``geometry_msgs/msg/PoseStamped``, ``frame_id``
+``polhemus_source``, metres, quaternion x, y, z, w. All stations of one tracker frame carry
+the same ``header.stamp``, which is also the message's log time; frames are
+``1 / rate`` apart from ``epoch`` (1_700_000_000.0 s), so the bag is reproducible: the same
+settings give a bit-for-bit identical bag (MCAP file and metadata.yaml; rosbags writes no
+wall-clock time).
+
+``<output>.truth.npz`` beside the bag folder (e.g. ``bags/cat_static/`` and
+``bags/cat_static.truth.npz``), written with fixed zip timestamps (also reproducible),
+holds exactly these arrays; positions in metres, times in seconds since the Unix epoch
+(the bag's stamps, ``stamp_ns / 1e9``):
+
+=====================  ==========  ============================================================
+key                    shape       content
+=====================  ==========  ============================================================
+object_name            () str      ``cat``, ``bottle`` or ``mug`` (:func:`inhand_sim.objects.get_object`)
+static                 () bool     static session (no object sensor in the bag)
+rate                   () float    tracker frame rate, Hz
+seed                   () int      the simulation seed
+settings_json          (B,) uint8  UTF-8 JSON of every simulation setting (:class:`SessionSettings`)
+surface_points         (N, 3)      dense ground-truth surface samples, OBJECT frame, uniform by
+                                   area, N >= 100,000 (``surface_samples``)
+surface_normals        (N, 3)      their outward unit normals
+contacts               (M, 3)      noise-free true contact points of every on-surface fingertip
+                                   sample, OBJECT frame, in time order (thumb, index, middle
+                                   within a frame); each lies on the surface
+contact_times          (M,)        their stamps
+stray_points           (K, 3)      noise-free fingertip positions off the surface (transits,
+                                   involuntary lifts, re-grasps), OBJECT frame, each at least
+                                   6 mm from the surface; same order
+stray_times            (K,)        their stamps
+object_times           (T,)        the stamp of every tracker frame
+object_positions       (T, 3)      true position of the OBJECT frame in the tracker frame
+object_quaternions     (T, 4)      its true orientation (x, y, z, w): ``p_tracker = R p_object
+                                   + position``; constant in static sessions
+=====================  ==========  ============================================================
+
+M + K = 3 T (every fingertip sample is one or the other). The OBJECT frame is the object
+sensor's frame, so in tracked mode ``build_map``'s map frame ``object`` is the frame of
+``surface_points``; in static mode the map frame is the tracker frame: transform
+``surface_points`` by the (constant) object pose.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import zipfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from inhand_common.rotations import (euler_zyx_to_quaternion, matrix_to_quaternion,
+                                     quaternion_multiply, quaternion_normalize,
+                                     rotate_vectors, slerp)
+from inhand_mapping.pose_cdr import encode_pose_stamped
+
+from inhand_sim.exploration import (FINGERS, Exploration, ExplorationSettings, TrackerNoise,
+                                    explore)
+from inhand_sim.objects import ObjectModel, get_object
+
+__all__ = [
+    'EPOCH',
+    'TRUTH_KEYS',
+    'SessionSettings',
+    'SimulatedSession',
+    'load_truth',
+    'simulate',
+    'truth_path',
+    'write_bag',
+    'write_session',
+    'write_truth',
+]
+
+EPOCH = 1_700_000_000.0
+FRAME_ID = 'polhemus_source'
+MSGTYPE = 'geometry_msgs/msg/PoseStamped'
+TRUTH_KEYS = ('object_name', 'static', 'rate', 'seed', 'settings_json', 'surface_points',
+              'surface_normals', 'contacts', 'contact_times', 'stray_points', 'stray_times',
+              'object_times', 'object_positions', 'object_quaternions')
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    """Everything that decides a session (all of it goes into ``settings_json``)."""
+    object_name: str = 'cat'
+    static: bool = True
+    regrasp: bool = True                  # moving sessions: re-grasps by the other hand
+    second_object_sensor: bool = False    # moving sessions: also publish 'object2'
+    rate: float = 15.0                    # Hz: 15 (the paper) or 240 (the device)
+    duration: float = 60.0                # s
+    seed: int = 0
+    noise_mm: float = 1.0                 # fingertip tracker noise, per axis
+    outlier_fraction: float = 0.002
+    outlier_range_mm: tuple = (10.0, 20.0)
+    object_noise_mm: float = 0.5          # object sensor position noise, per axis
+    object_noise_deg: float = 0.1         # object sensor orientation noise, per Euler angle
+    epoch: float = EPOCH                  # stamp of the first frame, s
+    surface_samples: int = 120_000        # ground-truth surface samples in the sidecar
+    static_centre: tuple = (0.25, 0.0, 0.05)   # tracker frame, where the object's centre stands
+    static_yaw_deg: float = 0.0           # turn of the static object about the vertical
+    moving_centre: tuple = (0.25, 0.0, 0.0)    # tracker frame, around which it is held
+    drift_mm: float = 20.0                # moving: amplitude of the hand's drift
+    sway_deg: float = 10.0                # moving: amplitude of the hand's sway
+    regrasp_interval: float = 40.0        # s between re-grasps
+    regrasp_window: float = 3.0           # s the fingers are off the object per re-grasp
+    regrasp_angle_range_deg: tuple = (60.0, 120.0)
+    exploration: ExplorationSettings = field(default_factory=ExplorationSettings)
+
+    def __post_init__(self):
+        problems = []
+        if self.rate <= 0 or not math.isfinite(self.rate):
+            problems.append(f'rate {self.rate} must be a positive number of Hz')
+        if not (0 < self.duration <= 24 * 3600):
+            problems.append(f'duration {self.duration} must be in (0, 86400] s')
+        if self.noise_mm < 0 or self.object_noise_mm < 0 or self.object_noise_deg < 0:
+            problems.append('noise levels must be >= 0')
+        if not 0 <= self.outlier_fraction <= 1:
+            problems.append(f'outlier_fraction {self.outlier_fraction} must be in [0, 1]')
+        if self.surface_samples < 1:
+            problems.append('surface_samples must be >= 1')
+        if self.seed < 0:
+            problems.append(f'seed {self.seed} must be >= 0')
+        if self.static and self.second_object_sensor:
+            problems.append('a static session has no object sensor, so no second one either')
+        if problems:
+            raise ValueError('; '.join(problems))
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True, separators=(',', ':'))
+
+
+@dataclass
+class SimulatedSession:
+    """A simulated session in memory: what goes into the bag, and the ground truth."""
+    settings: SessionSettings
+    object: ObjectModel
+    stations: tuple                # station names in publishing order
+    stamps_ns: np.ndarray          # (T,) int64
+    poses: np.ndarray              # (S, T, 7): x, y, z, qx, qy, qz, qw in the tracker frame
+    exploration: Exploration
+    truth: dict                    # the sidecar's arrays (TRUTH_KEYS)
+    regrasp_windows: list          # (start, end) s relative to the first frame
+
+    @property
+    def message_count(self) -> int:
+        return self.poses.shape[0] * self.poses.shape[1]
+
+    @property
+    def duration(self) -> float:
+        return (self.stamps_ns[-1] - self.stamps_ns[0]) / 1e9 if len(self.stamps_ns) else 0.0
+
+
+# --- object motion -----------------------------------------------------------------------
+
+def _static_pose(settings: SessionSettings, obj: ObjectModel):
+    """Constant pose: the object upright (object +z = tracker -z), its centre at
+    ``static_centre``."""
+    q = quaternion_multiply(euler_zyx_to_quaternion(math.radians(settings.static_yaw_deg), 0.0, 0.0),
+                            euler_zyx_to_quaternion(0.0, 0.0, math.pi))
+    q = quaternion_normalize(q)
+    position = np.asarray(settings.static_centre, dtype=float) - rotate_vectors(q, obj.centre)
+
+    def pose(times):
+        n = len(np.atleast_1d(times))
+        return np.repeat(position[None], n, axis=0), np.repeat(q[None], n, axis=0)
+    return pose
+
+
+def _regrasp_times(settings: SessionSettings, rng: np.random.Generator) -> list:
+    if settings.static or not settings.regrasp:
+        return []
+    w = settings.regrasp_window
+    times = []
+    k = 1
+    while settings.regrasp_interval * k + w + 4.0 < settings.duration:
+        times.append(settings.regrasp_interval * k + rng.uniform(-3.0, 3.0))
+        k += 1
+    if not times and settings.duration >= w + 8.0:
+        times.append(0.45 * settings.duration)
+    return [(t, t + w) for t in times]
+
+
+def _moving_pose(settings: SessionSettings, obj: ObjectModel, windows: list,
+                 rng: np.random.Generator) -> Callable:
+    """The hand-held object's pose as a function of time (s from the first frame):
+    drifting and swaying all the time, turned substantially at each re-grasp, about its
+    centre."""
+    centre0 = np.asarray(settings.moving_centre, dtype=float)
+    drift_amp = settings.drift_mm / 1000.0
+    # three sinusoids per axis with periods of 6-25 s
+    drift = [(rng.uniform(0.3, 0.6, 3) * drift_amp, 2 * math.pi / rng.uniform(6.0, 25.0, 3),
+              rng.uniform(0, 2 * math.pi, 3)) for _ in range(3)]
+    sway_amp = math.radians(settings.sway_deg)
+    sway = [(rng.uniform(0.35, 0.65, 2) * sway_amp, 2 * math.pi / rng.uniform(4.0, 15.0, 2),
+             rng.uniform(0, 2 * math.pi, 2)) for _ in range(3)]
+    yaw0 = rng.uniform(-0.5, 0.5)
+    base = [quaternion_normalize(quaternion_multiply(euler_zyx_to_quaternion(yaw0, 0.0, 0.0),
+                                                     euler_zyx_to_quaternion(0.0, 0.0, math.pi)))]
+    turns = []
+    for _ in windows:
+        angle = math.radians(rng.uniform(*settings.regrasp_angle_range_deg)) * rng.choice([-1.0, 1.0])
+        small = rng.normal(0.0, math.radians(8.0), 3)
+        kind = int(rng.integers(3))   # about the vertical, about forward, about sideways
+        small[kind] = angle
+        dq = euler_zyx_to_quaternion(*small)
+        base.append(quaternion_normalize(quaternion_multiply(dq, base[-1])))
+        turns.append(angle)
+    base = np.array(base)
+    centre_obj = obj.centre
+
+    def sums(params, t):
+        out = np.zeros((len(t), len(params)))
+        for axis, (amp, omega, phase) in enumerate(params):
+            out[:, axis] = np.sum(amp[None] * np.sin(omega[None] * t[:, None] + phase[None]), axis=1)
+        return out
+
+    def pose(times):
+        t = np.atleast_1d(np.asarray(times, dtype=float))
+        q_base = np.repeat(base[:1], len(t), axis=0)
+        for k, (wa, wb) in enumerate(windows):
+            # the turn itself, in the middle of the window (fingers away), smoothly
+            ra, rb = wa + 0.2 * (wb - wa), wb - 0.2 * (wb - wa)
+            u = np.clip((t - ra) / (rb - ra), 0.0, 1.0)
+            u = u ** 3 * (10 - 15 * u + 6 * u ** 2)
+            inside = t >= ra
+            if inside.any():
+                q_base[inside] = slerp(base[k], base[k + 1], u[inside])
+        angles = sums(sway, t)
+        q_sway = euler_zyx_to_quaternion(angles[:, 0], angles[:, 1], angles[:, 2])
+        q = quaternion_normalize(quaternion_multiply(q_sway, q_base))
+        centre = centre0 + sums(drift, t)
+        position = centre - rotate_vectors(q, centre_obj)
+        return position, q
+    pose.turn_angles = turns
+    return pose
+
+
+# --- the simulation ----------------------------------------------------------------------
+
+def _fingertip_orientations(obj: ObjectModel, p_obj: np.ndarray, q_obj: np.ndarray) -> np.ndarray:
+    """Fingertip sensor orientations in the tracker frame: z along the outward normal
+    there (object frame), x along the object's x as far as it goes, composed with the object's."""
+    n = obj.normals(p_obj)
+    ref = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    x = ref - np.sum(ref * n, axis=1, keepdims=True) * n
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.cross(n, x)
+    q_local = matrix_to_quaternion(np.stack([x, y, n], axis=2))
+    return quaternion_normalize(quaternion_multiply(q_obj, q_local))
+
+
+def simulate(settings: SessionSettings, progress: Callable[[str], None] | None = None
+             ) -> SimulatedSession:
+    """Simulate a session: deterministic in ``settings`` (seeded numpy Generators)."""
+    say = progress or (lambda message: None)
+    obj = get_object(settings.object_name)
+    seeds = np.random.SeedSequence(settings.seed).spawn(5)
+    rng_surface, rng_motion, rng_explore, rng_noise, rng_object_noise = (
+        np.random.default_rng(s) for s in seeds)
+    n_frames = int(round(settings.duration * settings.rate))
+    if n_frames < 2:
+        raise ValueError(f'{settings.duration} s at {settings.rate} Hz is fewer than 2 frames')
+    stamps_ns = (int(round(settings.epoch * 1e9))
+                 + np.round(np.arange(n_frames) * (1e9 / settings.rate)).astype(np.int64))
+    rel = (stamps_ns - stamps_ns[0]) / 1e9
+
+    windows = _regrasp_times(settings, rng_motion)
+    if settings.static:
+        pose_fn = _static_pose(settings, obj)
+        grips = [obj.static_grip]
+    else:
+        pose_fn = _moving_pose(settings, obj, windows, rng_motion)
+        grips = list(obj.moving_grips)
+    say('exploring')
+    exploration = explore(obj, settings.duration, settings.rate, rng_explore,
+                          settings.exploration, grips=grips, away_windows=windows,
+                          table=settings.static, object_pose=pose_fn)
+    # explore's sample times are k / rate: the same frames as the stamps
+    obj_pos, obj_q = pose_fn(rel)
+
+    say('sensors')
+    noise = TrackerNoise(settings.noise_mm / 1000.0, settings.outlier_fraction,
+                         tuple(v / 1000.0 for v in settings.outlier_range_mm))
+    stations = list(FINGERS)
+    poses = []
+    for f in range(len(FINGERS)):
+        p_obj = exploration.positions[f]
+        p_trk = obj_pos + rotate_vectors(obj_q, p_obj)
+        p_meas = p_trk + noise.sample((n_frames,), rng_noise)
+        q_tip = _fingertip_orientations(obj, p_obj, obj_q)
+        poses.append(np.concatenate([p_meas, q_tip], axis=1))
+    if not settings.static:
+        sensors = [('object', np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))]
+        if settings.second_object_sensor:
+            mount_p, mount_q = obj.second_sensor
+            sensors.append(('object2', np.asarray(mount_p, float), np.asarray(mount_q, float)))
+        sigma_p = settings.object_noise_mm / 1000.0
+        sigma_a = math.radians(settings.object_noise_deg)
+        for name, mount_p, mount_q in sensors:
+            p = obj_pos + rotate_vectors(obj_q, np.broadcast_to(mount_p, (n_frames, 3)))
+            q = quaternion_multiply(obj_q, np.broadcast_to(mount_q, (n_frames, 4)))
+            p = p + rng_object_noise.normal(0.0, sigma_p, (n_frames, 3))
+            dq = euler_zyx_to_quaternion(*rng_object_noise.normal(0.0, sigma_a, (3, n_frames)))
+            q = quaternion_normalize(quaternion_multiply(q, dq))
+            stations.append(name)
+            poses.append(np.concatenate([p, q], axis=1))
+    poses = np.stack(poses)
+
+    say('ground truth')
+    surface, normals = obj.sample_surface(settings.surface_samples, rng_surface)
+    times_s = stamps_ns / 1e9
+    order_pos = exploration.positions.transpose(1, 0, 2)   # (T, fingers, 3): time order
+    order_contact = exploration.contact.T
+    frame_times = np.repeat(times_s[:, None], len(FINGERS), axis=1)
+    truth = {
+        'object_name': np.array(settings.object_name),
+        'static': np.array(bool(settings.static)),
+        'rate': np.array(float(settings.rate)),
+        'seed': np.array(int(settings.seed), dtype=np.int64),
+        'settings_json': np.frombuffer(settings.to_json().encode('utf-8'), dtype=np.uint8).copy(),
+        'surface_points': surface,
+        'surface_normals': normals,
+        'contacts': order_pos[order_contact],
+        'contact_times': frame_times[order_contact],
+        'stray_points': order_pos[~order_contact],
+        'stray_times': frame_times[~order_contact],
+        'object_times': times_s,
+        'object_positions': obj_pos,
+        'object_quaternions': obj_q,
+    }
+    return SimulatedSession(settings=settings, object=obj, stations=tuple(stations),
+                            stamps_ns=stamps_ns, poses=poses, exploration=exploration,
+                            truth=truth, regrasp_windows=windows)
+
+
+# --- files -------------------------------------------------------------------------------
+
+def truth_path(bag_path) -> Path:
+    """The ground-truth sidecar of a bag folder: ``<bag folder>.truth.npz`` beside it."""
+    bag_path = Path(bag_path)
+    return bag_path.with_name(bag_path.name + '.truth.npz')
+
+
+def write_bag(session: SimulatedSession, path, progress: Callable[[float], None] | None = None
+              ) -> Path:
+    """Write the session's poses as a rosbag2 MCAP bag at ``path`` (must not exist)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    path = Path(path)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    n_stations, n_frames, _ = session.poses.shape
+    stamps = session.stamps_ns
+    secs = (stamps // 1_000_000_000).tolist()
+    nsecs = (stamps % 1_000_000_000).tolist()
+    poses = session.poses.tolist()
+    stamp_list = stamps.tolist()
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = [writer.add_connection(f'/polhemus/{name}/pose', MSGTYPE, typestore=store)
+                       for name in session.stations]
+        step = max(1, n_frames // 50)
+        for k in range(n_frames):
+            sec, nsec, stamp = secs[k], nsecs[k], stamp_list[k]
+            for s in range(n_stations):
+                writer.write(connections[s], stamp,
+                             encode_pose_stamped(sec, nsec, FRAME_ID, poses[s][k]))
+            if progress is not None and (k % step == 0 or k == n_frames - 1):
+                progress((k + 1) / n_frames)
+    return path
+
+
+def write_truth(session: SimulatedSession, path) -> Path:
+    """Write the ground-truth sidecar (an .npz with fixed zip timestamps: reproducible)."""
+    path = Path(path)
+    with zipfile.ZipFile(path, 'w', compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
+        for key in TRUTH_KEYS:
+            buffer = io.BytesIO()
+            np.lib.format.write_array(buffer, np.asanyarray(session.truth[key]), allow_pickle=False)
+            info = zipfile.ZipInfo(f'{key}.npy', date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            archive.writestr(info, buffer.getvalue())
+    return path
+
+
+def load_truth(path) -> dict:
+    """The sidecar's arrays as a dict (0-d arrays turned into Python scalars, settings
+    decoded into ``settings``)."""
+    with np.load(path, allow_pickle=False) as data:
+        out = {key: data[key] for key in data.files}
+    for key in ('object_name', 'static', 'rate', 'seed'):
+        out[key] = out[key].item()
+    out['settings'] = json.loads(out['settings_json'].tobytes().decode('utf-8'))
+    return out
+
+
+def write_session(session: SimulatedSession, output, force: bool = False,
+                  progress: Callable[[float], None] | None = None) -> tuple[Path, Path]:
+    """Write ``output/`` (the bag) and ``output.truth.npz`` atomically: both are written in
+    a temporary folder beside them and renamed into place (the sidecar first, then the
+    bag). Refuses to replace existing ones unless ``force``."""
+    import shutil
+    import tempfile
+    output = Path(output)
+    sidecar = truth_path(output)
+    existing = [p for p in (output, sidecar) if p.exists() or p.is_symlink()]
+    if existing and not force:
+        raise FileExistsError(f'{", ".join(map(str, existing))} exists already (use --force to replace)')
+    output.parent.mkdir(parents=True, exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix=f'.{output.name}.', dir=output.parent))
+    try:
+        bag_tmp = write_bag(session, scratch / output.name, progress)
+        truth_tmp = write_truth(session, scratch / sidecar.name)
+        for target in existing:
+            if target.is_dir() and not target.is_symlink():
+                shutil.rmtree(target)
+            else:
+                target.unlink()
+        truth_tmp.replace(sidecar)
+        bag_tmp.replace(output)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return output, sidecar

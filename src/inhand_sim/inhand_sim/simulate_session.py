@@ -1,0 +1,180 @@
+"""``simulate_session``: write a simulated exploration session as a bag plus ground truth.
+
+    simulate_session --object cat|bottle|mug --static|--moving [--regrasp/--no-regrasp]
+                     [--second-object-sensor] --rate 15|240 --duration SECONDS --seed N
+                     [--noise-mm 1.0] --output bags/NAME [--force] [--quiet]
+
+Writes the bag folder ``bags/NAME/`` (MCAP: the driver's ``polhemus/<name>/pose`` topics)
+and ``bags/NAME.truth.npz`` beside it (see :mod:`inhand_sim.session` for both formats),
+atomically: into a temporary folder beside them, then renamed into place. An existing bag
+or sidecar is replaced only with ``--force``. The same arguments write the same bytes.
+
+Exit status: 0 written, 1 could not write, 2 bad arguments or output exists.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+from inhand_sim.objects import OBJECT_NAMES
+from inhand_sim.session import SessionSettings, simulate, truth_path, write_session
+
+EXIT_WRITE_FAILED = 1
+EXIT_BAD_ARGUMENTS = 2
+
+
+def _positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number of seconds') from None
+    if not math.isfinite(value) or value <= 0 or value > 24 * 3600:
+        raise argparse.ArgumentTypeError(f'{text} s: the duration must be in (0, 86400] seconds')
+    return value
+
+
+def _rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a rate') from None
+    if value not in (15.0, 240.0):
+        raise argparse.ArgumentTypeError(
+            f'{text} Hz: choose 15 (the paper\'s rate) or 240 (the Liberty\'s)')
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not an integer seed') from None
+    if value < 0 or value >= 2 ** 63:
+        raise argparse.ArgumentTypeError(f'seed {text} must be in [0, 2^63)')
+    return value
+
+
+def _noise(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number of millimetres') from None
+    if not math.isfinite(value) or not 0.0 <= value <= 50.0:
+        raise argparse.ArgumentTypeError(f'{text} mm: the noise must be in [0, 50] mm')
+    return value
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='simulate_session',
+        description='Simulate three fingertips exploring an object (contour-following '
+                    'strokes, tracker noise, involuntary lifts; static on the table or held '
+                    'and re-grasped) and write the driver\'s bag plus exact ground truth.')
+    parser.add_argument('--object', required=True, choices=OBJECT_NAMES,
+                        help='the object explored')
+    mode = parser.add_mutually_exclusive_group(required=True)
+    mode.add_argument('--static', dest='static', action='store_true',
+                      help='object fixed on the table, no object sensor (map with '
+                           'config/mapping_static.yaml)')
+    mode.add_argument('--moving', dest='static', action='store_false',
+                      help='object held and moved by the other hand, object sensor published '
+                           '(map with config/mapping.yaml)')
+    parser.add_argument('--regrasp', action=argparse.BooleanOptionalAction, default=None,
+                        help='moving only: the other hand turns the object 60-120 degrees '
+                             'about every 40 s while the fingers are off it (default: on)')
+    parser.add_argument('--second-object-sensor', action='store_true',
+                        help='moving only: also publish a second sensor rigidly attached to '
+                             'the object (station object2)')
+    parser.add_argument('--rate', type=_rate, required=True, metavar='15|240',
+                        help='tracker frame rate in Hz')
+    parser.add_argument('--duration', type=_positive_seconds, required=True, metavar='SECONDS')
+    parser.add_argument('--seed', type=_seed, required=True, metavar='N')
+    parser.add_argument('--noise-mm', type=_noise, default=1.0, metavar='MM',
+                        help='fingertip tracker noise, standard deviation per axis (default 1.0)')
+    parser.add_argument('--output', required=True, metavar='bags/NAME',
+                        help='bag folder to write; the ground truth goes to NAME.truth.npz beside it')
+    parser.add_argument('--force', action='store_true', help='replace an existing bag and sidecar')
+    parser.add_argument('--quiet', action='store_true', help='no progress line')
+    return parser
+
+
+class _Progress:
+    """One progress line on stderr: redrawn in place on a terminal, every 10% otherwise."""
+
+    def __init__(self, quiet: bool, stream=sys.stderr):
+        self.quiet, self.stream = quiet, stream
+        self.tty = stream.isatty()
+        self.stage = ''
+        self.decile = -1
+
+    def stage_done(self, stage: str) -> None:
+        self.stage = stage
+        if not self.quiet and not self.tty:
+            print(f'simulate_session: {stage}', file=self.stream, flush=True)
+        elif not self.quiet:
+            self.stream.write(f'\rsimulate_session: {stage:<60}')
+            self.stream.flush()
+
+    def fraction(self, value: float) -> None:
+        if self.quiet:
+            return
+        line = f'simulate_session: writing [{"#" * int(value * 30):<30}] {value:6.1%}'
+        if self.tty:
+            self.stream.write('\r' + line)
+            self.stream.flush()
+            if value >= 1.0:
+                self.stream.write('\n')
+        elif int(value * 10) > self.decile:
+            self.decile = int(value * 10)
+            print(line, file=self.stream, flush=True)
+
+
+def main(argv=None) -> int:
+    parser = make_parser()
+    args = parser.parse_args(argv)
+    if args.static and args.regrasp:
+        parser.error('--regrasp needs --moving: a static object is not re-grasped')
+    if args.static and args.second_object_sensor:
+        parser.error('--second-object-sensor needs --moving: a static session has no object sensor')
+    output = args.output.rstrip('/') or args.output
+    sidecar = truth_path(output)
+    from pathlib import Path
+    existing = [str(p) for p in (Path(output), sidecar) if p.exists()]
+    if existing and not args.force:
+        print(f'simulate_session: {" and ".join(existing)} already '
+              f'{"exists" if len(existing) == 1 else "exist"}; use --force to replace',
+              file=sys.stderr)
+        return EXIT_BAD_ARGUMENTS
+    settings = SessionSettings(
+        object_name=args.object, static=args.static,
+        regrasp=(args.regrasp is not False) and not args.static,
+        second_object_sensor=args.second_object_sensor, rate=args.rate,
+        duration=args.duration, seed=args.seed, noise_mm=args.noise_mm)
+    progress = _Progress(args.quiet)
+    started = time.monotonic()
+    session = simulate(settings, progress=lambda stage: progress.stage_done(stage))
+    try:
+        bag, truth = write_session(session, output, force=args.force, progress=progress.fraction)
+    except OSError as error:
+        print(f'simulate_session: could not write {output}: {error}', file=sys.stderr)
+        return EXIT_WRITE_FAILED
+    elapsed = time.monotonic() - started
+    tr = session.truth
+    kind = 'static' if settings.static else (
+        f'moving, {len(session.regrasp_windows)} re-grasp(s)' if settings.regrasp else 'moving, no re-grasp')
+    print(f'simulate_session: {settings.object_name} ({kind}), {settings.duration:g} s at '
+          f'{settings.rate:g} Hz, seed {settings.seed}, noise {settings.noise_mm:g} mm')
+    print(f'  wrote {bag}/ : {session.message_count:,} messages '
+          f'({len(session.stamps_ns):,} frames x {len(session.stations)} stations: '
+          f'{", ".join(session.stations)})')
+    print(f'  wrote {truth} : {len(tr["contacts"]):,} contacts, {len(tr["stray_points"]):,} '
+          f'strays, {len(tr["surface_points"]):,} surface samples')
+    print(f'  in {elapsed:.1f} s')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
