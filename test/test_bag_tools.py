@@ -315,7 +315,7 @@ def test_record_captures_a_latched_topic_and_replay_latches_it_again(tmp_path):
         with running(['bag_record', '-o', str(output), 'occupancy/cloud']) as recorder:
             talker.wait_matched(publisher)
             assert publisher.wait_for_all_acked(Duration(seconds=10))
-            time.sleep(1.0)
+            time.sleep(2.0)  # the replay below has 2 s to show the first to a late joiner
             publisher.publish(second)
             assert publisher.wait_for_all_acked(Duration(seconds=10))
             assert recorder.interrupt() == 0, recorder.output()
@@ -326,7 +326,8 @@ def test_record_captures_a_latched_topic_and_replay_latches_it_again(tmp_path):
     assert qos.durability.name == 'TRANSIENT_LOCAL'
     # Replayed, the topic is transient-local again: a subscriber that comes after the first
     # message was published still gets it.
-    with running(['bag_replay', str(output), '--quiet']) as replay, talking('test_late') as late:
+    with running(['bag_replay', str(output), '--quiet', '--wait-subscribers', '0']) as replay, \
+            talking('test_late') as late:
         deadline = time.monotonic() + 20
         while not late.node.get_publishers_info_by_topic('/occupancy/cloud'):
             assert time.monotonic() < deadline, replay.output()
@@ -363,6 +364,17 @@ def test_record_refuses_an_existing_output_unless_forced(tmp_path):
     assert (output / 'notes.txt').read_text() == 'mine'
     result = run_tool('bag_record', '-o', tmp_path / 'x')
     assert result.returncode == 2 and 'name the topics to record, or --all' in result.stderr
+
+
+def test_record_all_for_a_duration(tmp_path):
+    output = tmp_path / 'all'
+    with pose_stream('record_all/pose', period=0.005):
+        result = run_tool('bag_record', '-o', output, '--all', '--duration', '1', timeout=30)
+    assert result.returncode == 0, result.stdout + result.stderr
+    bag = read_bag(output)
+    assert 'rosout' not in bag and 'parameter_events' not in bag
+    stamps = [decode_pose_stamped(raw)[0] for _, raw in bag['record_all/pose']]
+    assert 100 <= len(stamps) <= 260 and stamps == list(range(stamps[0], stamps[0] + len(stamps)))
 
 
 # -- topic_echo ------------------------------------------------------------------------------
@@ -494,3 +506,39 @@ def test_tools_stop_on_sigterm_while_waiting(tmp_path):
         assert recorder.popen.wait(10) == 0, recorder.output()
     assert 'never appeared with a publisher: /never/there' in recorder.output()
     assert read_bag(output) == {}
+
+
+# -- topic_echo's text, without DDS ----------------------------------------------------------
+
+def test_echo_text_is_yaml_with_arrays_cut_and_strings_quoted():
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from inhand_tools.echo_format import Options, format_message
+    diagnostics = DiagnosticArray(status=[DiagnosticStatus(
+        level=b'\x01', name='liberty: driver', message="it's ok\n(mostly)",
+        values=[KeyValue(key='yes', value='')])])
+    assert yaml.safe_load(format_message(diagnostics))['status'] == [{
+        'level': 1, 'name': 'liberty: driver', 'message': "it's ok\n(mostly)",
+        'hardware_id': '', 'values': [{'key': 'yes', 'value': ''}]}]
+    pose = PoseWithCovarianceStamped()
+    pose.pose.covariance[:] = np.arange(36) * 0.5
+    text = format_message(pose)
+    assert 'covariance: [0.0, 0.5, 1.0,' in text and ', 7.5, ...]  # 36 items' in text
+    full = yaml.safe_load(format_message(pose, Options(full_length=True)))
+    assert full['pose']['covariance'] == list(np.arange(36) * 0.5)
+    assert 'covariance: <array of double, 36 items>' in format_message(pose, Options(no_arr=True))
+
+
+@pytest.mark.parametrize('path, problem', [
+    ('pose..x', 'expected names and [index] separated by dots'),
+    ('[0]', 'expected names and [index] separated by dots'),
+    ('pose.position[0]', "indexes geometry_msgs/msg/Point, which is not an array"),
+    ('header.stamp.sec.x', "int32 has no field 'x'"),
+])
+def test_echo_field_paths_are_checked_against_the_type(path, problem):
+    from inhand_tools.echo_format import FieldPathError, check_field_path, parse_field_path
+    with pytest.raises(FieldPathError, match=re.escape(problem)):
+        check_field_path(PoseStamped, parse_field_path(path), path)
+    from diagnostic_msgs.msg import DiagnosticArray
+    assert check_field_path(DiagnosticArray, parse_field_path('status[0].values[-1].key')) == \
+        'string'

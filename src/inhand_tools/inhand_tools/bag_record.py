@@ -20,9 +20,9 @@ what was not written yet. The publishers' offered QoS is stored with each topic,
 ``bag_replay`` offers the same again.
 
 Stopping: Ctrl-C (SIGINT), SIGTERM or the end of ``--duration`` (counted from the first
-subscription) ends the loop; the recorder then takes every message already in its DDS
-queues (until they stay empty for a moment, at most 2 s), and closes the bag (chunk
-index, summary, metadata.yaml). Nothing received is lost. A recorder killed outright
+subscription) ends the loop; the recorder then takes every message already in its
+queues (until it finds them empty, at most 2 s), and closes the bag (chunk index,
+summary, metadata.yaml). Nothing received is lost. A recorder killed outright
 (SIGKILL, power loss) leaves an MCAP without its summary: ``bag_replay`` and
 ``build_map`` still read it up to the last complete chunk (1 MiB).
 
@@ -43,8 +43,9 @@ from inhand_tools.bag_io import UnknownMessageType, message_class, positive_floa
 
 EXIT_REFUSED = 2
 DISCOVERY_PERIOD = 0.2   # s between looks at the graph for topics still to subscribe
-DRAIN_IDLE = 0.06        # s: queues empty this long -> drained
-DRAIN_MAX = 2.0          # s: never drain longer than this (a publisher still sending)
+DRAIN_IDLE = 0.05        # s: spin_once timeout while draining
+QUEUE_EMPTY = 0.002      # s: a spin_once that waited this long found the queue empty
+DRAIN_MAX = 2.0          # s: never drain longer than this
 QUIET_TOPICS = ('/rosout', '/parameter_events')
 BAG_FILES = ('.mcap', '.db3', '.yaml', '.zstd')
 
@@ -52,7 +53,7 @@ BAG_FILES = ('.mcap', '.db3', '.yaml', '.zstd')
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parts = __doc__.split('\n\n')
     parser = argparse.ArgumentParser(
-        prog='bag_record', description=parts[0].replace('\n', ' '),
+        prog='bag_record', description=parts[0].replace('\n', ' ').replace('``', ''),
         epilog='\n\n'.join(parts[2:]), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('-o', '--output', type=Path, required=True,
                         help='bag folder to create')
@@ -93,6 +94,7 @@ class Recorder:
         self.types: dict[str, str] = {}
         self.ignored: set[str] = set()
         self.total = 0
+        self.busy = 0.0  # s spent in message callbacks (tells waiting from working)
         self.errors: list[str] = []
         self.first_subscription: float | None = None
         self._subscriptions = []
@@ -139,9 +141,11 @@ class Recorder:
             self.types[topic] = msgtype
 
             def on_message(raw, connection=connection, topic=topic):
+                began = time.monotonic()
                 self.writer.write(connection, time.time_ns(), raw)
                 self.counts[topic] += 1
                 self.total += 1
+                self.busy += time.monotonic() - began
 
             self._subscriptions.append(
                 self.node.create_subscription(cls, topic, on_message, qos, raw=True))
@@ -206,22 +210,28 @@ def record(args, full_argv: list[str]) -> int:
 
 
 def drain(executor, recorder: Recorder) -> None:
-    """Take what is still queued: spin until nothing arrives for DRAIN_IDLE (<= DRAIN_MAX)."""
+    """Take what was queued when the recording stopped.
+
+    The executor's event queue holds everything DDS has received and not yet handed to a
+    callback. Spin until one ``spin_once`` had to wait for an event (the time it took,
+    less the time spent in our callbacks, is over QUEUE_EMPTY): the queue was empty then,
+    so everything received before the stop is written. A publisher that keeps sending
+    does not keep the drain going, and DRAIN_MAX bounds it anyway.
+    """
     end = time.monotonic() + DRAIN_MAX
-    quiet_since = time.monotonic()
     while time.monotonic() < end:
-        before = recorder.total
-        executor.spin_once(timeout_sec=0.01)
-        now = time.monotonic()
-        if recorder.total != before:
-            quiet_since = now
-        elif now - quiet_since >= DRAIN_IDLE:
+        busy_before = recorder.busy
+        began = time.monotonic()
+        executor.spin_once(timeout_sec=DRAIN_IDLE)
+        waited = time.monotonic() - began - (recorder.busy - busy_before)
+        if waited > QUEUE_EMPTY:
             return
 
 
 def summary(recorder: Recorder, output: Path, wall: float) -> str:
-    lines = [f'bag_record: wrote {recorder.total} messages on {len(recorder.counts)} topics to '
-             f'{output} in {wall:.1f} s']
+    topics = len(recorder.counts)
+    lines = [f'bag_record: wrote {recorder.total} messages on {topics} '
+             f'topic{"" if topics == 1 else "s"} to {output} in {wall:.1f} s']
     width = max((len(t) for t in recorder.counts), default=0)
     for topic, count in sorted(recorder.counts.items()):
         lines.append(f'  {topic:<{width}}  {count:>9}  {recorder.types[topic]}')

@@ -11,10 +11,12 @@ namespace or a remapping given with ``--ros-args`` applies), with the message ty
 names (``pkg/msg/Type`` -> ``pkg.msg.Type``). The QoS is the one the bag recorded as
 offered (reliable or best effort, transient-local or volatile, the depth) and otherwise
 reliable/volatile depth 1000. Timing: the gaps between the bag's timestamps divided by
-``--rate`` (default 1). ``--start-offset`` skips the bag's first seconds; ``--loop``
-starts again at the end until Ctrl-C. A progress line goes to stderr (redrawn on a
-terminal, every 10% otherwise) and a summary to stdout at the end. A truncated MCAP bag
-is replayed up to its cut (read record by record, as ``build_map`` does) and said so.
+``--rate`` (default 1), after waiting up to 1 s (``--wait-subscribers``) for a
+subscriber on every topic: a message published before a subscriber is matched never
+reaches it. ``--start-offset`` skips the bag's first seconds; ``--loop`` starts again at
+the end until Ctrl-C. A progress line goes to stderr (redrawn on a terminal, every 10%
+otherwise) and a summary to stdout at the end. A truncated MCAP bag is replayed up to
+its cut (read record by record, as ``build_map`` does) and said so.
 
 ``--fast``: as fast as the subscribers keep up, with nothing lost. How:
 
@@ -46,6 +48,10 @@ behind loses the oldest in its own queue whatever the publisher does; a best-eff
 subscriber never acknowledges anything. Subscribe with KEEP_ALL (or a depth above the
 bag's message count) to be fed without loss at any speed; bag_replay warns about
 best-effort subscribers (the history of a remote reader is not visible in discovery).
+Measured here (2 cores, 60 s of 240 Hz poses from 4 stations, 57,600 messages): a raw
+KEEP_ALL subscriber on the EventsExecutor takes 50,000-80,000 messages/s and gets all of
+them; one on the SingleThreadedExecutor takes about 4,000/s and gets all of them (the
+replay is held back to its pace); the same with KEEP_LAST 1000 got 9,281 of 57,600.
 
 Exit status: 0 done (or stopped with Ctrl-C), 1 the bag is truncated or damaged (what
 could be read was replayed), 2 refused arguments or bag.
@@ -68,6 +74,7 @@ from inhand_tools.bag_io import (BagError, BagSource, Progress, UnknownMessageTy
 EXIT_DAMAGED = 1
 EXIT_REFUSED = 2
 HEARTBEAT_NS = 20_000_000
+TIMED_WAIT = 1.0          # s: a timed replay waits this long at most for subscribers
 TIMED_ACK_TIMEOUT = 5.0   # s: at the end of a timed replay, wait at most this for acks
 SLOW_PUBLISH = 0.002      # s: a publish() that took longer was held back by a reader
 
@@ -105,6 +112,7 @@ class Stats:
     passes: int = 0
     held_back: float = 0.0
     blocked: int = 0
+    ack_wait: float = 0.0    # s after the last publish until every message was acknowledged
     stopped: bool = False
     per_topic: dict = field(default_factory=dict)
 
@@ -112,7 +120,7 @@ class Stats:
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parts = __doc__.split('\n\n')
     parser = argparse.ArgumentParser(
-        prog='bag_replay', description=parts[0].replace('\n', ' '),
+        prog='bag_replay', description=parts[0].replace('\n', ' ').replace('``', ''),
         epilog='\n\n'.join(parts[2:]), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('bag', type=Path, help='bag folder, or .mcap / .db3 file')
     pace = parser.add_mutually_exclusive_group()
@@ -127,8 +135,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help='replay only these topics (default: all)')
     parser.add_argument('--wait-subscribers', type=non_negative_float, metavar='SECONDS',
                         help='before starting, wait up to SECONDS for a subscriber on every '
-                        'topic (default: --fast waits as long as it takes, timed replay '
-                        'does not wait)')
+                        'topic (default: --fast waits as long as it takes; a timed replay '
+                        'waits up to 1 s, time for running subscribers to be discovered, '
+                        'so their first messages are not lost; 0: start at once)')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
     return parser.parse_args(argv)
 
@@ -193,7 +202,7 @@ class Replayer:
     def wait_for_subscribers(self) -> None:
         timeout = self.args.wait_subscribers
         if timeout is None:
-            timeout = None if self.args.fast else 0.0
+            timeout = None if self.args.fast else TIMED_WAIT
         if timeout == 0.0:
             return
         from inhand_tools.bag_ros import wait_until
@@ -329,7 +338,7 @@ class Replayer:
                     print('bag_replay: waiting for the subscribers to acknowledge the last '
                           'messages (Ctrl-C to stop)', file=sys.stderr, flush=True)
                     told = True
-        self.ack_wait = time.monotonic() - began
+        self.stats.ack_wait = time.monotonic() - began
 
 
 def summary(stats: Stats, streams: dict[str, Stream], args) -> str:
@@ -346,6 +355,10 @@ def summary(stats: Stats, streams: dict[str, Stream], args) -> str:
     if args.fast and (stats.held_back > 0.01 or stats.blocked):
         lines.append(f'  held back {stats.held_back:.2f} s by subscribers that were not '
                      f'keeping up ({stats.blocked} publish attempts found the writer full)')
+    if args.fast and stats.ack_wait > 0.05 and stats.passes == 1:
+        end = stats.wall + stats.ack_wait
+        lines.append(f'  every message acknowledged {end:.3f} s after the first was published: '
+                     f'{stats.bag_seconds / end:.2f}x real time end to end')
     return '\n'.join(lines)
 
 

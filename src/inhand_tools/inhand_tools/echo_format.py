@@ -15,6 +15,7 @@ message type before anything is received (``check_field_path``).
 from __future__ import annotations
 
 import array
+import json
 import re
 from dataclasses import dataclass
 
@@ -166,6 +167,8 @@ def _string(text: str) -> str:
     if _YAML_PLAIN.match(text) and text.lower() not in _YAML_WORDS and \
             not text.endswith(' ') and ': ' not in text:
         return text
+    if not text.isprintable():
+        return json.dumps(text)  # a YAML double-quoted scalar with escapes (newlines ...)
     return "'" + text.replace("'", "''") + "'"
 
 
@@ -210,11 +213,15 @@ def _message_lines(msg, options: Options, indent: str) -> list[str]:
     return lines
 
 
+def _is_array_type(field_type: str) -> bool:
+    return field_type.startswith('sequence<') or field_type.endswith(']')
+
+
 def _field_lines(name: str, value, field_type: str, options: Options, indent: str) -> list[str]:
     if hasattr(value, 'get_fields_and_field_types'):
         nested = _message_lines(value, options, indent + '  ')
         return [f'{indent}{name}:'] + nested if nested else [f'{indent}{name}: {{}}']
-    if _is_array(value):
+    if _is_array(value) and (_is_array_type(field_type) or not isinstance(value, bytes)):
         items = _array_items(value) if not isinstance(value, np.ndarray) else value
         if len(items) and hasattr(items[0], 'get_fields_and_field_types'):
             return [f'{indent}{name}:'] + _message_list(items, field_type, options, indent)

@@ -47,7 +47,7 @@ def positive_int(text: str) -> int:
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parts = __doc__.split('\n\n')
     parser = argparse.ArgumentParser(
-        prog='topic_echo', description=parts[0].replace('\n', ' '),
+        prog='topic_echo', description=parts[0].replace('\n', ' ').replace('``', ''),
         epilog='\n\n'.join(parts[2:]), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('topic', help='topic name (relative names resolve in the namespace)')
     parser.add_argument('--type', metavar='pkg/msg/Type',
