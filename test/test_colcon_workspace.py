@@ -15,6 +15,8 @@ from conftest import WORKSPACE
 EXECUTABLES = {
     'polhemus_liberty': ['liberty_driver', 'liberty_emulator'],
     'inhand_mapping': ['registration_node', 'occupancy_node', 'build_map'],
+    'inhand_sim': ['simulate_session'],
+    'inhand_tools': ['bag_replay', 'bag_record', 'topic_echo', 'map_metrics', 'render_map'],
 }
 
 

@@ -324,8 +324,10 @@ def test_truth_sidecar_format(written, static_session):
     settings = json.loads(arrays['settings_json'].tobytes().decode('utf-8'))
     assert settings['object_name'] == 'cat' and settings['exploration']['pool_size'] == 150
     assert arrays['surface_points'].shape[0] >= 100_000
-    for key, width in (('surface_points', 3), ('surface_normals', 3), ('contacts', 3),
-                       ('stray_points', 3), ('object_positions', 3), ('object_quaternions', 4)):
+    for key, width in (('surface_points', 3), ('surface_normals', 3)):
+        assert arrays[key].dtype == np.float32 and arrays[key].shape[1] == width
+    for key, width in (('contacts', 3), ('stray_points', 3), ('object_positions', 3),
+                       ('object_quaternions', 4)):
         assert arrays[key].dtype == np.float64 and arrays[key].shape[1] == width
     assert len(arrays['contacts']) == len(arrays['contact_times'])
     assert len(arrays['stray_points']) == len(arrays['stray_times'])

@@ -22,7 +22,7 @@ from pathlib import Path
 from geometry_msgs.msg import PointStamped
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
@@ -36,7 +36,9 @@ from inhand_mapping.occupancy import WindowedIntegrator
 
 MAP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-POINTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+# KEEP_ALL: a slow map update holds the registration node back instead of losing points.
+POINTS_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
+                        reliability=ReliabilityPolicy.RELIABLE)
 MAP_FRAME = 'object'
 
 

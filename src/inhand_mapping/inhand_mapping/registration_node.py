@@ -18,7 +18,7 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from inhand_common.node_runner import run_node
@@ -29,8 +29,12 @@ from inhand_mapping.clouds import pack_registered
 from inhand_mapping.mapping_config import REGISTRATION_PARAMETERS, make_registrar
 from inhand_mapping.pose_cdr import decode_pose_stamped
 
-POSE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-POINTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+# KEEP_ALL on the data path: a reliable KEEP_ALL reader only acknowledges what it has room
+# for, so a fast publisher (bag_replay --fast) is held back instead of losing samples.
+POSE_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
+                      reliability=ReliabilityPolicy.RELIABLE)
+POINTS_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
+                        reliability=ReliabilityPolicy.RELIABLE)
 LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 MAP_FRAME = 'object'
