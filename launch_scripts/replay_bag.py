@@ -18,10 +18,10 @@ import sys
 import time
 from pathlib import Path
 
-from inhand_tools.launching import ProcessGroup, call_trigger, mapping_graph
+from inhand_tools.launching import ProcessGroup, call_trigger, mapping_graph, wait_until_quiet
 
 WORKSPACE = Path(__file__).resolve().parents[1]
-SETTLE = 1.0  # s after the replay: the registration node publishes every 50 ms
+QUIET = 1.0  # s without registered points after the replay: the graph has caught up
 
 
 def bag_has_object_sensor(bag: Path) -> bool:
@@ -51,7 +51,8 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             print(f'[launch] bag_replay ended with exit code {code}', file=sys.stderr)
             if code != 1:  # 1: truncated bag, replayed what could be read
                 return code
-        time.sleep(SETTLE)
+        from sensor_msgs.msg import PointCloud2
+        wait_until_quiet('registration/points', PointCloud2, quiet=QUIET)
         ok, message = call_trigger('occupancy/save')
         print(f'[launch] occupancy/save: {message}', flush=True)
         if not ok:

@@ -157,7 +157,7 @@ def test_never_extrapolates_across_a_gap_or_past_the_last_pose():
     reg.add_object_pose(0.05, [0.05, 0.0, 0.0], identity)  # gap == max_gap: interpolated
     reg.add_object_pose(0.15, [0.15, 0.0, 0.0], identity)  # gap 0.1 > max_gap
     reg.add_fingertips(np.array([0.025, 0.1, 0.12, 0.2, 0.3]), np.zeros((5, 3)),
-                       np.arange(5))
+                       np.zeros(5, dtype=int))
     points, stamps, fingers = reg.drain()
     assert stamps.tolist() == [0.025]
     np.testing.assert_allclose(points, [[-0.025, 0.0, 0.0]], atol=1e-12)
@@ -173,7 +173,7 @@ def test_fingertips_before_the_first_object_pose_are_dropped():
     identity = [0.0, 0.0, 0.0, 1.0]
     reg = Registrar()
     # Arriving before any object pose, they wait; once it comes the early ones are dropped.
-    reg.add_fingertips(np.array([0.98, 0.99, 1.0]), np.ones((3, 3)), np.array([1, 2, 3]))
+    reg.add_fingertips(np.array([0.98, 0.99, 1.0]), np.ones((3, 3)), np.array([3, 3, 3]))
     assert reg.drain()[0].shape == (0, 3) and reg.stats.pending == 3
     reg.add_object_pose(1.0, [0.0, 0.0, 0.0], identity)
     points, stamps, fingers = reg.drain()
@@ -221,7 +221,7 @@ def test_static_mode_passes_points_through_in_the_tracker_frame():
     pts = rng.normal(size=(6, 3))
     pts[2, 1] = np.nan
     reg.add_fingertips(np.array([0.3, 0.1, 0.2, 0.4, 0.0, 0.5]), pts, np.array([1, 2, 3, 1, 2, 3]))
-    points, stamps, fingers = reg.drain()
+    points, stamps, fingers = reg.finish()
     assert stamps.tolist() == [0.0, 0.1, 0.3, 0.4, 0.5]
     np.testing.assert_array_equal(points, pts[[4, 1, 0, 3, 5]])
     assert fingers.tolist() == [2, 2, 1, 1, 3]
@@ -277,10 +277,11 @@ def test_late_fingertips_register_within_max_pending_and_history_stays_bounded()
 def test_stalled_object_stream_does_not_grow_the_buffer():
     reg = Registrar(max_pending=0.5)
     reg.add_object_pose(0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
-    for k in range(1, 1201):  # 5 s of fingertips, no more object poses
-        reg.add_fingertips(np.full(3, k / RATE), np.zeros((3, 3)), np.array([1, 2, 3]))
+    for k in range(1, 1201):  # 5 s of fingertips, no more object poses; wall = sensor pace
+        reg.add_fingertips(np.full(3, k / RATE), np.zeros((3, 3)), np.array([1, 2, 3]),
+                           now=k / RATE)
         if k % 24 == 0:
-            reg.drain()
+            reg.drain(now=k / RATE)
     assert reg.stats.pending <= 3 * (0.5 * RATE + 24 + 1)
     assert reg.stats.dropped_gap >= 3 * (1200 - 0.5 * RATE - 24)
     assert balanced(reg.stats)
@@ -294,7 +295,7 @@ def test_output_is_time_ordered_across_calls_and_fingers_broadcast():
     reg.add_fingertips(0.03, np.array([[3.0, 0, 0], [3.5, 0, 0]]), 2)  # scalar t and finger
     reg.add_fingertips(np.array([0.01, 0.02]), np.array([[1.0, 0, 0], [2.0, 0, 0]]), [1, 1])
     reg.add_fingertips(0.0, [0.5, 0.0, 0.0], 3)  # one position as (3,)
-    points, stamps, fingers = reg.drain()
+    points, stamps, fingers = reg.finish()
     assert stamps.tolist() == [0.0, 0.01, 0.02, 0.03, 0.03]
     assert points[:, 0].tolist() == [0.5, 1.0, 2.0, 3.0, 3.5]
     assert fingers.tolist() == [3, 1, 1, 2, 2]
@@ -348,7 +349,7 @@ def test_random_streams_match_a_point_by_point_reference():
 
     expected = reference_registration(obj_t, obj_p, obj_q, t, p, 0.05)
     keep = np.array([e is not None for e in expected])
-    order = np.argsort(t, kind='stable')
+    order = np.lexsort((fingers, t))  # the output order: by time, then finger
     order = order[keep[order]]
     assert 300 < order.size < t.size  # the case mix is real: some resolve, some do not
     np.testing.assert_array_equal(stamps, t[order])
@@ -390,3 +391,34 @@ def test_a_long_stream_registers_exactly():
     points, _, _ = reg.drain()
     assert points.shape == (200_000, 3)
     np.testing.assert_allclose(points, np.broadcast_to(OFFSETS[0], points.shape), atol=1e-9)
+
+
+def test_points_are_released_in_time_order_up_to_the_slowest_finger_stream():
+    """Topics are delivered independently: one finger's stream may run ahead. Nothing is
+    released past the oldest newest-stamp of the streams, so the output stays in time
+    order across drains, which the occupancy windows rely on."""
+    identity = [0.0, 0.0, 0.0, 1.0]
+    reg = Registrar()
+    for k in range(101):
+        reg.add_object_pose(k * 0.01, [0.0, 0.0, 0.0], identity)
+    times = np.arange(100) * 0.01
+    reg.add_fingertips(times, np.zeros((100, 3)), 1)            # thumb: the whole second
+    reg.add_fingertips(times[:30], np.zeros((30, 3)), 2)        # index: lagging behind
+    _, first, _ = reg.drain()
+    assert first.max() <= times[29] and first.size == 60
+    reg.add_fingertips(times[30:], np.zeros((70, 3)), 2)        # index catches up
+    _, second, _ = reg.drain()
+    released = np.concatenate([first, second])
+    assert released.size == 200 and np.all(np.diff(released) >= 0)
+
+
+def test_a_silent_finger_stream_stops_holding_the_others_back():
+    identity = [0.0, 0.0, 0.0, 1.0]
+    reg = Registrar(max_pending=0.5)
+    for k in range(101):
+        reg.add_object_pose(k * 0.01, [0.0, 0.0, 0.0], identity)
+    reg.add_fingertips(np.array([0.0]), np.zeros((1, 3)), 2, now=0.0)   # index, then silent
+    reg.add_fingertips(np.arange(50) * 0.01, np.zeros((50, 3)), 1, now=0.1)
+    assert reg.drain(now=0.2)[1].size == 2     # held at index's last stamp (0.0)
+    assert reg.drain(now=0.7)[1].size == 49    # index silent for 0.7 s > max_pending
+    assert balanced(reg.stats)

@@ -27,8 +27,9 @@ REGISTRATION_PARAMETERS = (
     ParamSpec('max_gap', 0.05, 'Longest gap (s) between two object poses to interpolate '
               'across; fingertips in longer gaps are dropped, never extrapolated',
               minimum=0.001, maximum=5.0),
-    ParamSpec('max_pending', 1.0, 'Seconds a fingertip may wait for an object pose at or '
-              'after its stamp before it is dropped', minimum=0.01, maximum=60.0),
+    ParamSpec('max_pending', 2.0, 'Seconds (wall clock) a fingertip may wait for an object '
+              'pose at or after its stamp before it is dropped, and a silent finger stream '
+              'may hold back the time-ordered output', minimum=0.01, maximum=60.0),
     ParamSpec('publish_period', 0.05, 'Seconds between registration/points messages '
               '(registered points are batched)', minimum=0.001, maximum=5.0),
 )

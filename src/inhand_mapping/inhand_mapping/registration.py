@@ -28,16 +28,26 @@ Pairing a fingertip with an object pose
   before the object pose of its own tracker frame.
 * Earlier than the first object pose ever received: dropped (``dropped_before_object``).
 
-Bounded memory
---------------
+Order and bounded memory
+------------------------
+Each topic is delivered in order, but the topics are not ordered with respect to each
+other: a fast replay can deliver one finger's stream seconds of sensor time ahead of
+another's. Registered points are therefore released in time order up to a watermark: the
+oldest of the newest stamps of the finger streams (no stream can still deliver anything
+older). Downstream (the occupancy windows) then sees one time-ordered stream, whatever
+the delivery order, which is what makes the live map equal ``build_map``'s.
+
 Object poses arrive in time order; a duplicate or older one is ignored
-(``object_out_of_order``). Only the object poses that can still be needed are kept: those
-from ``max_pending`` seconds before the newest one (fingertips may arrive that late and still
-be registered), and further back only as far as the oldest buffered fingertip. A fingertip
-that is still waiting while the newest fingertip is more than ``max_pending`` seconds newer
-has been waiting for an object stream that stalled: it is dropped (``dropped_gap``, or
+(``object_out_of_order``). Only the object poses that can still be needed are kept: back to
+the watermark, the oldest waiting fingertip or ``HISTORY_SECONDS`` before the newest pose,
+whichever is oldest.
+
+Waiting is bounded in wall-clock time, when the caller gives it (``now``, seconds of a
+monotonic clock; the node does, ``build_map`` does not need to): a fingertip that has
+waited ``max_pending`` seconds for an object pose is dropped (``dropped_gap``, or
 ``dropped_before_object`` while no object pose has arrived at all), so an unplugged object
-sensor cannot make the buffer grow without end.
+sensor cannot make the buffer grow without end; and a finger stream that has been silent
+for ``max_pending`` seconds no longer holds the watermark back.
 
 Every fingertip received ends up in exactly one counter::
 
@@ -59,6 +69,10 @@ from inhand_common.rotations import quaternion_to_matrix, slerp
 __all__ = ['MODES', 'RegistrationStats', 'Registrar']
 
 MODES = ('tracked', 'static')
+
+# Object poses always kept behind the newest one (sensor seconds), whatever the streams say:
+# covers the ordinary delivery skew of a finger stream not seen yet.
+HISTORY_SECONDS = 1.0
 
 # Stamps per block when computing object poses (cache-sized temporaries).
 _BLOCK = 16384
@@ -89,9 +103,9 @@ class Registrar:
     """Pairs fingertip positions with object poses and returns them in the map frame.
 
     Feed it with :meth:`add_object_pose` and :meth:`add_fingertips` in any interleaving
-    that keeps the two streams within ``max_pending`` seconds of each other (fingertips
-    may also be given before all the object poses they need); :meth:`drain` returns what
-    can be registered so far, :meth:`finish` ends the input.
+    (each stream in its own time order; fingertips may come before the object poses they
+    need); :meth:`drain` returns what can be registered so far, in time order, and
+    :meth:`finish` ends the input. ``max_pending`` is in seconds of the ``now`` clock.
     Times are float seconds (``sec + nanosec * 1e-9``); at epoch scale a float64 resolves
     about 0.24 microseconds, far below the tracker period.
     """
@@ -116,11 +130,13 @@ class Registrar:
         self._first_pose: tuple[np.ndarray, np.ndarray] | None = None
         self._first_t = math.nan
         self._latest_t = -math.inf
-        # Fingertips waiting: chunks appended by add_fingertips, merged (time-sorted) by drain.
-        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        # Fingertips waiting: chunks (times, positions, fingers, arrival times) appended by
+        # add_fingertips, merged (time-sorted) by drain.
+        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._n_pending = 0
         self._pending_min_t = math.inf
-        self._newest_fingertip_t = -math.inf
+        # Per finger stream: [newest stamp, arrival (now) of it or nan].
+        self._streams: dict[int, list[float]] = {}
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -169,11 +185,12 @@ class Registrar:
             self._first_pose = (p.copy(), q.copy())
             self._first_t = t
 
-    def add_fingertips(self, t, positions, fingers) -> None:
+    def add_fingertips(self, t, positions, fingers, now: float | None = None) -> None:
         """Buffer fingertip positions: ``t`` (N,) seconds, ``positions`` (N, 3), ``fingers`` (N,).
 
         A scalar ``t`` or ``fingers`` applies to every row; one position may be given as (3,).
         Rows with a non-finite time or position are dropped here (``dropped_invalid``).
+        ``now`` (monotonic wall clock, s) is when they arrived, for the waiting limits.
         """
         pos = np.asarray(positions, dtype=float)
         if pos.ndim == 1:
@@ -199,76 +216,99 @@ class Registrar:
         else:
             times = times.copy()  # decouple from the caller's (possibly broadcast) arrays
             pos = pos.copy()
-        self._chunks.append((times, pos, fing))
+        arrival = np.full(times.size, math.nan if now is None else float(now))
+        self._chunks.append((times, pos, fing, arrival))
         self._n_pending += times.size
         self._pending_min_t = min(self._pending_min_t, float(times.min()))
-        self._newest_fingertip_t = max(self._newest_fingertip_t, float(times.max()))
+        for finger in np.unique(fing).tolist():
+            newest = float(times[fing == finger].max())
+            stream = self._streams.setdefault(finger, [-math.inf, math.nan])
+            if newest >= stream[0]:
+                stream[0] = newest
+            stream[1] = math.nan if now is None else float(now)
         self._set_pending()
 
     # ------------------------------------------------------------------ outputs
-    def drain(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def drain(self, now: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Registered (points (M, 3) in the map frame, times (M,), fingers (M,)), time-ordered.
 
-        Returns every buffered fingertip that can be resolved now, drops those that never
-        can, and keeps the ones still waiting for an object pose.
+        Returns every buffered fingertip up to the watermark that can be resolved now,
+        drops those that never can, and keeps the ones still waiting. ``now``: see the
+        module docstring.
         """
-        return self._resolve(final=False)
+        return self._resolve(final=False, now=now)
 
     def finish(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """End of input: register what can be, drop the rest (nothing is extrapolated)."""
-        return self._resolve(final=True)
+        return self._resolve(final=True, now=None)
 
     # ------------------------------------------------------------------ internals
     def _set_pending(self) -> None:
         self.stats.pending = self._n_pending
 
-    def _take_pending(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _take_pending(self):
         chunks, self._chunks = self._chunks, []
         self._n_pending = 0
         if not chunks:
-            return np.empty(0), np.empty((0, 3)), np.empty(0, dtype=np.int32)
+            return (np.empty(0), np.empty((0, 3)), np.empty(0, dtype=np.int32), np.empty(0))
         if len(chunks) == 1:
-            t, p, f = chunks[0]
+            t, p, f, a = chunks[0]
         else:
-            t = np.concatenate([c[0] for c in chunks])
-            p = np.concatenate([c[1] for c in chunks])
-            f = np.concatenate([c[2] for c in chunks])
-        if t.size > 1 and np.any(t[1:] < t[:-1]):
-            order = np.argsort(t, kind='stable')
-            t, p, f = t[order], p[order], f[order]
-        return t, p, f
+            t, p, f, a = (np.concatenate([c[k] for c in chunks]) for k in range(4))
+        if t.size > 1 and (len(chunks) > 1 or np.any(t[1:] <= t[:-1])):
+            # By time, then finger: the output order (and so the map, to the last bit of
+            # its sums) does not depend on the order the topics were delivered in.
+            order = np.lexsort((f, t))
+            t, p, f, a = t[order], p[order], f[order], a[order]
+        return t, p, f, a
 
-    def _keep_waiting(self, t, p, f) -> None:
-        self._n_pending = t.size
-        if t.size:
-            self._chunks = [(t, p, f)]
-            self._pending_min_t = float(t[0])
-        else:
-            self._pending_min_t = math.inf
+    def _keep_waiting(self, *parts) -> None:
+        """Keep these (times, positions, fingers, arrivals) tuples waiting, time-ordered."""
+        parts = [part for part in parts if part[0].size]
+        self._chunks = parts
+        self._n_pending = sum(part[0].size for part in parts)
+        self._pending_min_t = min((float(part[0].min()) for part in parts), default=math.inf)
 
-    def _resolve(self, final: bool):
-        t, p, f = self._take_pending()
+    def _watermark(self, now: float | None) -> float:
+        """Oldest newest-stamp of the finger streams still delivering (see the module doc)."""
+        newest = [stamp for stamp, arrival in self._streams.values()
+                  if now is None or math.isnan(arrival) or now - arrival <= self.max_pending]
+        return min(newest) if newest else math.inf
+
+    def _stale(self, arrival: np.ndarray, now: float | None) -> np.ndarray:
+        """Fingertips that have waited longer than max_pending (never, without a clock)."""
+        if now is None:
+            return np.zeros(arrival.size, dtype=bool)
+        with np.errstate(invalid='ignore'):
+            return now - arrival > self.max_pending
+
+    def _resolve(self, final: bool, now: float | None):
+        t, p, f, a = self._take_pending()
+        held = (t[:0], p[:0], f[:0], a[:0])
+        if not final and t.size:
+            # Only up to the watermark: a later point may still be preceded by another's.
+            watermark = self._watermark(now)
+            cut = int(np.searchsorted(t, watermark, side='right'))
+            held = (t[cut:], p[cut:], f[cut:], a[cut:])
+            t, p, f, a = t[:cut], p[:cut], f[:cut], a[:cut]
         if t.size == 0:
-            self._keep_waiting(t, p, f)
+            self._keep_waiting(held)
             self._set_pending()
-            self._trim_history()
+            self._trim_history(now)
             return _empty_result()
 
         if self.mode == 'static':
             self.stats.registered += t.size
-            self._keep_waiting(t[:0], p[:0], f[:0])
+            self._keep_waiting(held)
             self._set_pending()
             return p, t, f
 
         n_obj = self._n_obj
         if n_obj == 0:
             # No object pose yet: everything waits (or, at the end, was before the object).
-            if final:
-                waiting = np.zeros(t.size, dtype=bool)
-            else:
-                waiting = t >= self._newest_fingertip_t - self.max_pending
+            waiting = np.zeros(t.size, dtype=bool) if final else ~self._stale(a, now)
             self.stats.dropped_before_object += int(t.size - np.count_nonzero(waiting))
-            self._keep_waiting(t[waiting], p[waiting], f[waiting])
+            self._keep_waiting((t[waiting], p[waiting], f[waiting], a[waiting]), held)
             self._set_pending()
             return _empty_result()
 
@@ -323,18 +363,18 @@ class Registrar:
             out = _empty_result()
 
         # Still waiting: later than the newest object pose, unless the input has ended or
-        # the object stream has stalled for longer than max_pending.
-        if final:
-            self.stats.dropped_gap += int(counts[later].sum())
-            later[:] = False
-        else:
-            stalled = later & (ut < self._newest_fingertip_t - self.max_pending)
-            self.stats.dropped_gap += int(counts[stalled].sum())
-            later &= ~stalled
+        # the point has waited longer than max_pending (the object stream stalled).
         wait = later[stamp_of]
-        self._keep_waiting(t[wait], p[wait], f[wait])
+        if final:
+            self.stats.dropped_gap += int(np.count_nonzero(wait))
+            wait[:] = False
+        else:
+            stalled = wait & self._stale(a, now)
+            self.stats.dropped_gap += int(np.count_nonzero(stalled))
+            wait &= ~stalled
+        self._keep_waiting((t[wait], p[wait], f[wait], a[wait]), held)
         self._set_pending()
-        self._trim_history()
+        self._trim_history(now)
         return out
 
     def _object_poses_at(self, times, k, interpolate):
@@ -365,16 +405,16 @@ class Registrar:
             rot[block] = quaternion_to_matrix(q)
         return rot, pos
 
-    def _keep_from(self) -> float:
+    def _keep_from(self, now: float | None) -> float:
         """Oldest object time that can still be needed (see the module docstring)."""
-        return min(self._latest_t - self.max_pending, self._pending_min_t)
+        return min(self._watermark(now), self._pending_min_t, self._latest_t - HISTORY_SECONDS)
 
-    def _trim_history(self) -> None:
+    def _trim_history(self, now: float | None = None) -> None:
         """Forget object poses no fingertip can need, keeping one bracketing the boundary."""
         n = self._n_obj
         if n < 2:
             return
-        start = int(np.searchsorted(self._obj_t[:n], self._keep_from(), side='right')) - 1
+        start = int(np.searchsorted(self._obj_t[:n], self._keep_from(now), side='right')) - 1
         if start <= 0:
             return
         keep = n - start

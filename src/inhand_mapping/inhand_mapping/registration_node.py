@@ -14,6 +14,8 @@ rclpy's own deserialisation would be most of this node's time.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.experimental import EventsExecutor
@@ -69,7 +71,8 @@ class RegistrationNode(Node):
     def _on_fingertip(self, raw: bytes, index: int) -> None:
         sec, nanosec, _, pose = decode_pose_stamped(raw)
         t = sec + nanosec * 1e-9
-        self.registrar.add_fingertips(np.array([t]), np.array([pose[:3]]), np.array([index]))
+        self.registrar.add_fingertips(np.array([t]), np.array([pose[:3]]), np.array([index]),
+                                      now=time.monotonic())
 
     def _on_object(self, raw: bytes) -> None:
         sec, nanosec, _, pose = decode_pose_stamped(raw)
@@ -88,7 +91,7 @@ class RegistrationNode(Node):
         self._frame_sent = True
 
     def _publish(self) -> None:
-        points, times, fingers = self.registrar.drain()
+        points, times, fingers = self.registrar.drain(now=time.monotonic())
         if len(points) == 0:
             return
         cloud = pack_registered(points, times, fingers)
@@ -101,7 +104,8 @@ class RegistrationNode(Node):
             f'stopped: {stats.registered} of {stats.received} fingertip positions registered; '
             f'dropped {stats.dropped_gap} (object pose gap), {stats.dropped_before_object} '
             f'(before the first object pose), {stats.dropped_invalid} (invalid); '
-            f'{stats.pending} pending')
+            f'{stats.pending} pending; {stats.object_poses} object poses, '
+            f'{stats.object_out_of_order} out of order, {stats.object_invalid} invalid')
 
 
 def main(args=None) -> int:

@@ -143,3 +143,36 @@ def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: s
     group.start('registration', ['registration_node', *ros_args])
     group.start('occupancy', ['occupancy_node', *ros_args, '-p', f'output_dir:={output_dir}',
                               '-p', f'map_name:={map_name}'])
+
+
+def wait_until_quiet(topic: str, msg_type, quiet: float = 1.0, timeout: float = 120.0) -> int:
+    """Wait until nothing has arrived on ``topic`` for ``quiet`` seconds; returns how many
+    messages arrived meanwhile. The end of a replay is not the end of the work: the graph
+    may still hold a queue of messages acknowledged but not yet processed."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node('launch_quiet_watch', context=context)
+    arrivals = [0, time.monotonic()]
+
+    def count(_raw):
+        arrivals[0] += 1
+        arrivals[1] = time.monotonic()
+
+    node.create_subscription(msg_type, topic, count,
+                             QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
+                                        reliability=ReliabilityPolicy.RELIABLE), raw=True)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() - arrivals[1] < quiet and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        return arrivals[0]
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
