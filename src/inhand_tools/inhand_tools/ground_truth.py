@@ -39,13 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from inhand_common.rotations import quaternion_normalize, rotate_vectors, slerp
+from inhand_sim.session import TRUTH_KEYS, truth_path  # the format's one definition
 
 __all__ = ['GroundTruth', 'TRUTH_KEYS', 'FRAMES', 'load_truth', 'truth_path_for_bag',
            'in_frame', 'default_frame', 'pose_at', 'save_truth']
-
-TRUTH_KEYS = ('object_name', 'static', 'rate', 'seed', 'settings_json', 'surface_points',
-              'surface_normals', 'contacts', 'contact_times', 'stray_points', 'stray_times',
-              'object_times', 'object_positions', 'object_quaternions')
 
 FRAMES = ('object', 'tracker')
 
@@ -91,7 +88,7 @@ def truth_path_for_bag(bag) -> Path:
     bag = Path(bag)
     if bag.is_file() and bag.suffix in ('.mcap', '.db3'):
         bag = bag.parent
-    return bag.parent / f'{bag.name}.truth.npz'
+    return truth_path(bag)
 
 
 def _scalar(data, key, kind, path):
