@@ -2,11 +2,14 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|all] [benchmark options]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|all] [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
 #   mapping            occupancy integration vs OctoMap + publishing a full 70^3 map + build_map
 #                      (test/benchmarks/bench_mapping.py: --quick, --points N, --runs R)
+#   replay             a 240 Hz, 4-station, 60 s bag through bag_replay -> registration ->
+#                      occupancy over DDS: real-time factor, nothing lost
+#                      (test/benchmarks/bench_replay.py: --bag BAG, --runs R)
 #   all                every benchmark in turn, each with the same options
 # Examples:
 #   bash launch_scripts/benchmark.sh --seconds 20
@@ -18,8 +21,9 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 declare -A BENCHMARKS=(
   [liberty]=bench_liberty.py
   [mapping]=bench_mapping.py
+  [replay]=bench_replay.py
 )
-ORDER=(liberty mapping)
+ORDER=(liberty mapping replay)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

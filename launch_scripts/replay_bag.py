@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from inhand_tools.launching import ProcessGroup, call_trigger, mapping_graph, wait_until_quiet
+from inhand_tools.launching import ProcessGroup, TopicWatch, call_trigger, mapping_graph
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 QUIET = 1.0  # s without registered points after the replay: the graph has caught up
@@ -44,15 +44,19 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
     output.mkdir(parents=True, exist_ok=True)
     print(f'[launch] mapping graph with {config}; replaying {bag}', flush=True)
     started = time.monotonic()
-    with ProcessGroup() as group:
+    from sensor_msgs.msg import PointCloud2
+    with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch:
         mapping_graph(group, str(config), str(output), name)
+        # The registration node's first points must find the occupancy node listening.
+        if not watch.wait_connected():
+            print('[launch] the mapping nodes did not come up', file=sys.stderr)
+            return 1
         code = group.run('replay', ['bag_replay', str(bag), *rate_args])
         if code != 0:
             print(f'[launch] bag_replay ended with exit code {code}', file=sys.stderr)
             if code != 1:  # 1: truncated bag, replayed what could be read
                 return code
-        from sensor_msgs.msg import PointCloud2
-        wait_until_quiet('registration/points', PointCloud2, quiet=QUIET)
+        watch.wait_quiet(QUIET)
         ok, message = call_trigger('occupancy/save')
         print(f'[launch] occupancy/save: {message}', flush=True)
         if not ok:

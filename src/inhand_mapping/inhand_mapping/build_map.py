@@ -27,7 +27,8 @@ from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import (OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS,
                                            make_grid, make_registrar)
 from inhand_mapping.occupancy import WindowedIntegrator
-from inhand_mapping.pose_cdr import decode_pose_stamped
+from inhand_mapping.registration import HISTORY_SECONDS
+from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 
 EXIT_TRUNCATED = 1
 EXIT_BAD_INPUT = 2
@@ -171,68 +172,88 @@ class BagMessages:
             self._reader.close()
 
 
-def build(bag: Path, registration_values: dict, occupancy_values: dict,
-          progress: bool = True) -> dict:
-    """Run the bag through registration and occupancy; returns the pieces and a report."""
-    registrar = make_registrar(registration_values)
-    grid = make_grid(occupancy_values)
-    integrator = WindowedIntegrator(grid, occupancy_values['integration_window'])
-    fingers = list(registration_values['finger_names'])
-    topics = {f'polhemus/{name}/pose': index for index, name in enumerate(fingers)}
-    object_topic = None
-    if registration_values['mode'] == 'tracked':
-        object_topic = f'polhemus/{registration_values["object_name"]}/pose'
-    report = {'messages': 0, 'truncated': None, 'bag_start': None, 'bag_end': None}
+class BagRegistration:
+    """The registered fingertip points of a bag, batch by batch, exactly as the
+    registration node would publish them (same Registrar, same parameters, through the
+    topic's float32 layout). Also keeps the raw fingertip positions when asked, and a
+    report of what was read.
+    """
 
-    def process(chunk: list[tuple[str, bytes]]) -> None:
+    def __init__(self, bag: Path, registration_values: dict, progress: bool = False,
+                 keep_raw: bool = False):
+        self.bag = bag
+        self.values = registration_values
+        self.progress = progress
+        self.registrar = make_registrar(registration_values)
+        fingers = list(registration_values['finger_names'])
+        self.topics = {f'polhemus/{name}/pose': index for index, name in enumerate(fingers)}
+        self.object_topic = None
+        if registration_values['mode'] == 'tracked':
+            self.object_topic = f'polhemus/{registration_values["object_name"]}/pose'
+        self.report = {'messages': 0, 'truncated': None, 'bag_start': None, 'bag_end': None}
+        self.raw: list[tuple[np.ndarray, np.ndarray]] | None = [] if keep_raw else None
+
+    def __iter__(self):
+        wanted = set(self.topics) | ({self.object_topic} if self.object_topic else set())
+        report = self.report
+        chunk: list[tuple[str, bytes]] = []
+        with BagMessages(self.bag, wanted) as source:
+            bar = Progress(source.total) if self.progress else None
+            for topic, timestamp, raw in source:
+                chunk.append((topic, raw))
+                report['bag_start'] = report['bag_start'] or timestamp
+                report['bag_end'] = timestamp
+                report['messages'] += 1
+                if len(chunk) >= CHUNK:
+                    yield from self._process(chunk)
+                    chunk = []
+                    if bar:
+                        bar.update(report['messages'])
+            yield from self._process(chunk)
+            if bar:
+                bar.update(report['messages'])
+                bar.close()
+            report['truncated'] = source.problem
+            report['expected_messages'] = source.total
+        yield self._as_published(*self.registrar.finish())
+
+    def _process(self, chunk: list[tuple[str, bytes]]):
         if not chunk:
             return
-        decoded = [(topic, *decode_pose_stamped(raw)) for topic, raw in chunk]
-        times = np.array([sec + nanosec * 1e-9 for _, sec, nanosec, _, _ in decoded])
-        poses = np.array([pose for *_, pose in decoded])
-        is_object = np.array([topic == object_topic for topic, *_ in decoded])
-        finger_ids = np.array([topics.get(topic, -1) for topic, *_ in decoded])
-        # Feed the registrar in slices of sensor time shorter than max_pending, object
-        # poses before fingertips, as a live stream interleaves them: a whole chunk of
-        # object poses at once would age its own fingertips out of the pose history.
-        slice_ids = np.floor(times / (registration_values['max_pending'] / 2.0))
+        stamps, _, poses = decode_pose_stamped_many([raw for _, raw in chunk])
+        times = stamp_seconds(stamps)
+        is_object = np.array([topic == self.object_topic for topic, _ in chunk])
+        finger_ids = np.array([self.topics.get(topic, -1) for topic, _ in chunk])
+        if self.raw is not None:
+            self.raw.append((poses[~is_object, :3], finger_ids[~is_object]))
+        # Feed the registrar in short slices of sensor time, object poses before
+        # fingertips, the way a live stream interleaves them.
+        slice_ids = np.floor(times / (HISTORY_SECONDS / 2.0))
         for slice_id in np.unique(slice_ids):
             part = slice_ids == slice_id
             for k in np.flatnonzero(part & is_object):
-                registrar.add_object_pose(times[k], poses[k, :3], poses[k, 3:])
+                self.registrar.add_object_pose(times[k], poses[k, :3], poses[k, 3:])
             tips = part & ~is_object
             if tips.any():
-                registrar.add_fingertips(times[tips], poses[tips, :3], finger_ids[tips])
-            integrate(*registrar.drain())
+                self.registrar.add_fingertips(times[tips], poses[tips, :3], finger_ids[tips])
+            yield self._as_published(*self.registrar.drain())
 
-    def integrate(points, times, finger_ids) -> None:
+    @staticmethod
+    def _as_published(points, times, finger_ids):
         # Through the topic's float32 layout, so the map equals the node's to the bit.
-        points, times, _ = unpack_registered(pack_registered(points, times, finger_ids))
-        integrator.add(points, times)
+        return unpack_registered(pack_registered(points, times, finger_ids))
 
-    wanted = set(topics) | ({object_topic} if object_topic else set())
-    chunk: list[tuple[str, bytes]] = []
-    with BagMessages(bag, wanted) as source:
-        bar = Progress(source.total) if progress else None
-        for topic, timestamp, raw in source:
-            chunk.append((topic, raw))
-            report['bag_start'] = report['bag_start'] or timestamp
-            report['bag_end'] = timestamp
-            report['messages'] += 1
-            if len(chunk) >= CHUNK:
-                process(chunk)
-                chunk = []
-                if bar:
-                    bar.update(report['messages'])
-        process(chunk)
-        if bar:
-            bar.update(report['messages'])
-            bar.close()
-        report['truncated'] = source.problem
-        report['expected_messages'] = source.total
-    integrate(*registrar.finish())
+
+def build(bag: Path, registration_values: dict, occupancy_values: dict,
+          progress: bool = True) -> dict:
+    """Run the bag through registration and occupancy; returns the pieces and a report."""
+    grid = make_grid(occupancy_values)
+    integrator = WindowedIntegrator(grid, occupancy_values['integration_window'])
+    registration = BagRegistration(bag, registration_values, progress)
+    for points, times, _ in registration:
+        integrator.add(points, times)
     integrator.flush()
-    return {'grid': grid, 'registrar': registrar, 'report': report}
+    return {'grid': grid, 'registrar': registration.registrar, 'report': registration.report}
 
 
 def main(argv=None) -> int:

@@ -205,3 +205,15 @@ def encode_pose_stamped(sec: int, nanosec: int, frame_id: str, pose7) -> bytes:
     except struct.error as err:
         raise ValueError(f'cannot encode PoseStamped (sec must fit int32, nanosec uint32, '
                          f'the pose 7 floats): {err}') from None
+
+
+def stamp_seconds(stamps_ns) -> np.ndarray:
+    """Float seconds of integer nanosecond stamps, computed as ``sec + nanosec * 1e-9``.
+
+    Every place that turns stamps into seconds uses this one formula, so that a fingertip
+    and the object pose of the same tracker frame get bit-identical times (registration
+    pairs them by equality) whichever path decoded them.
+    """
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    return (stamps_ns // 1_000_000_000).astype(np.float64) + \
+        (stamps_ns % 1_000_000_000).astype(np.float64) * 1e-9

@@ -29,7 +29,7 @@ from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
 from inhand_mapping.clouds import pack_registered
 from inhand_mapping.mapping_config import REGISTRATION_PARAMETERS, make_registrar
-from inhand_mapping.pose_cdr import decode_pose_stamped
+from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 
 # KEEP_ALL on the data path: a reliable KEEP_ALL reader only acknowledges what it has room
 # for, so a fast publisher (bag_replay --fast) is held back instead of losing samples.
@@ -48,13 +48,17 @@ class RegistrationNode(Node):
         self.values = declare_parameters(self, REGISTRATION_PARAMETERS)
         self.registrar = make_registrar(self.values)
         self.fingers = list(self.values['finger_names'])
+        # Callbacks only keep the raw messages; the timer decodes them in batches
+        # (pose_cdr.decode_pose_stamped_many) and registers them: at 240 Hz x 4 stations,
+        # and much more in a fast replay, per-message Python work is what limits the node.
+        self._raw_fingertips: list[list[bytes]] = [[] for _ in self.fingers]
+        self._raw_objects: list[bytes] = []
         for index, name in enumerate(self.fingers):
-            self.create_subscription(
-                PoseStamped, f'polhemus/{name}/pose',
-                lambda raw, index=index: self._on_fingertip(raw, index), POSE_QOS, raw=True)
+            self.create_subscription(PoseStamped, f'polhemus/{name}/pose',
+                                     self._raw_fingertips[index].append, POSE_QOS, raw=True)
         if self.values['mode'] == 'tracked':
             self.create_subscription(PoseStamped, f'polhemus/{self.values["object_name"]}/pose',
-                                     self._on_object, POSE_QOS, raw=True)
+                                     self._raw_objects.append, POSE_QOS, raw=True)
         self._points = self.create_publisher(PointCloud2, 'registration/points', POINTS_QOS)
         self._object_frame = self.create_publisher(PoseStamped, 'registration/object_frame',
                                                    LATCHED_QOS)
@@ -68,17 +72,22 @@ class RegistrationNode(Node):
             + (f" against {self.values['object_name']}" if self.values['mode'] == 'tracked'
                else ' (map frame = tracker frame)'))
 
-    def _on_fingertip(self, raw: bytes, index: int) -> None:
-        sec, nanosec, _, pose = decode_pose_stamped(raw)
-        t = sec + nanosec * 1e-9
-        self.registrar.add_fingertips(np.array([t]), np.array([pose[:3]]), np.array([index]),
-                                      now=time.monotonic())
-
-    def _on_object(self, raw: bytes) -> None:
-        sec, nanosec, _, pose = decode_pose_stamped(raw)
-        self.registrar.add_object_pose(sec + nanosec * 1e-9, pose[:3], pose[3:])
-        if not self._frame_sent and self.registrar.first_object_pose is not None:
-            self._send_object_frame(*self.registrar.first_object_pose)
+    def _take_received(self) -> None:
+        """Decode and register what the subscriptions kept since the last call."""
+        now = time.monotonic()
+        objects, self._raw_objects[:] = list(self._raw_objects), []
+        if objects:
+            stamps, _, poses = decode_pose_stamped_many(objects)
+            for t, pose in zip(stamp_seconds(stamps).tolist(), poses):
+                self.registrar.add_object_pose(t, pose[:3], pose[3:])
+            if not self._frame_sent and self.registrar.first_object_pose is not None:
+                self._send_object_frame(*self.registrar.first_object_pose)
+        for index, buffer in enumerate(self._raw_fingertips):
+            raw, buffer[:] = list(buffer), []
+            if raw:
+                stamps, _, poses = decode_pose_stamped_many(raw)
+                self.registrar.add_fingertips(stamp_seconds(stamps), poses[:, :3], index,
+                                              now=now)
 
     def _send_object_frame(self, position, quaternion) -> None:
         msg = PoseStamped()
@@ -91,6 +100,7 @@ class RegistrationNode(Node):
         self._frame_sent = True
 
     def _publish(self) -> None:
+        self._take_received()
         points, times, fingers = self.registrar.drain(now=time.monotonic())
         if len(points) == 0:
             return

@@ -145,34 +145,75 @@ def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: s
                               '-p', f'map_name:={map_name}'])
 
 
-def wait_until_quiet(topic: str, msg_type, quiet: float = 1.0, timeout: float = 120.0) -> int:
-    """Wait until nothing has arrived on ``topic`` for ``quiet`` seconds; returns how many
-    messages arrived meanwhile. The end of a replay is not the end of the work: the graph
-    may still hold a queue of messages acknowledged but not yet processed."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+class TopicWatch:
+    """Watches a topic from before a replay starts until the graph has gone quiet.
 
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = Node('launch_quiet_watch', context=context)
-    arrivals = [0, time.monotonic()]
+    ``with TopicWatch('registration/points', PointCloud2) as watch: ...; watch.wait_quiet()``
+    The end of a replay is not the end of the work: the graph may still hold a queue of
+    messages acknowledged but not yet processed. Subscribing before the replay (so
+    discovery is done) and then waiting until nothing has arrived for ``quiet`` seconds
+    tells when it is done.
+    """
 
-    def count(_raw):
-        arrivals[0] += 1
-        arrivals[1] = time.monotonic()
+    def __init__(self, topic: str, msg_type):
+        self.topic, self.msg_type = topic, msg_type
+        self.count = 0
+        self.last: float | None = None  # monotonic time of the last message
 
-    node.create_subscription(msg_type, topic, count,
-                             QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
-                                        reliability=ReliabilityPolicy.RELIABLE), raw=True)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    try:
+    def __enter__(self) -> 'TopicWatch':
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        self._context = rclpy.Context()
+        rclpy.init(context=self._context)
+        self._node = Node('launch_topic_watch', context=self._context)
+        self._node.create_subscription(
+            self.msg_type, self.topic, self._arrived,
+            QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
+                       reliability=ReliabilityPolicy.RELIABLE), raw=True)
+        self._executor = SingleThreadedExecutor(context=self._context)
+        self._executor.add_node(self._node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+        return self
+
+    def _arrived(self, _raw) -> None:
+        self.count += 1
+        self.last = time.monotonic()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            self._executor.spin_once(timeout_sec=0.05)
+
+    def wait_connected(self, publishers: int = 1, subscribers: int = 2,
+                       timeout: float = 30.0, settle: float = 0.5) -> bool:
+        """Until the graph shows this many publishers and subscribers of the topic (this
+        watch is one of the subscribers), then ``settle`` more seconds for the endpoints
+        to match: messages published before a reader matched are not delivered to it."""
         deadline = time.monotonic() + timeout
-        while time.monotonic() - arrivals[1] < quiet and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-        return arrivals[0]
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        while time.monotonic() < deadline:
+            if self._node.count_publishers(self.topic) >= publishers and \
+                    self._node.count_subscribers(self.topic) >= subscribers:
+                time.sleep(settle)
+                return True
+            time.sleep(0.05)
+        return False
+
+    def wait_quiet(self, quiet: float = 1.0, timeout: float = 300.0) -> None:
+        """Until nothing has arrived for ``quiet`` seconds (or ``timeout``)."""
+        start = time.monotonic()
+        while time.monotonic() - start < timeout:
+            since = time.monotonic() - (self.last if self.last is not None else start)
+            if since >= quiet:
+                return
+            time.sleep(0.05)
+
+    def __exit__(self, *exc) -> None:
+        import rclpy
+        self._stop.set()
+        self._thread.join(5.0)
+        self._node.destroy_node()
+        rclpy.try_shutdown(context=self._context)

@@ -186,65 +186,23 @@ class BagPoints:
 def read_bag_points(bag, mode: str, config: str | None = None) -> BagPoints:
     """Raw and registered fingertip positions, registered exactly as ``build_map`` does
     (same parameters, same Registrar, same feeding order), in ``mode`` static/tracked."""
-    from inhand_mapping.build_map import CHUNK, BagMessages, load_parameters
-    from inhand_mapping.clouds import pack_registered, unpack_registered
-    from inhand_mapping.mapping_config import make_registrar
-    from inhand_mapping.pose_cdr import decode_pose_stamped
+    from inhand_mapping.build_map import BagRegistration, load_parameters
     bag = Path(bag)
     if not bag.exists():
         raise ValueError(f'{bag}: no such bag')
     values, _ = load_parameters(config, {'mode': mode})
-    registrar = make_registrar(values)
-    fingers = list(values['finger_names'])
-    topics = {f'polhemus/{name}/pose': index for index, name in enumerate(fingers)}
-    object_topic = f'polhemus/{values["object_name"]}/pose' if mode == 'tracked' else None
-    raw, raw_fingers, registered = [], [], []
-
-    def take(result) -> None:
-        points, times, finger_ids = result
-        if len(points):  # through the topic's float32 layout, as build_map does
-            registered.append(unpack_registered(pack_registered(points, times, finger_ids)))
-
-    def process(chunk) -> None:
-        if not chunk:
-            return
-        decoded = [(topic, *decode_pose_stamped(data)) for topic, data in chunk]
-        times = np.array([sec + nanosec * 1e-9 for _, sec, nanosec, _, _ in decoded])
-        poses = np.array([pose for *_, pose in decoded])
-        is_object = np.array([topic == object_topic for topic, *_ in decoded])
-        finger_ids = np.array([topics.get(topic, -1) for topic, *_ in decoded])
-        tips = ~is_object
-        raw.append(poses[tips, :3])
-        raw_fingers.append(finger_ids[tips])
-        slice_ids = np.floor(times / (values['max_pending'] / 2.0))
-        for slice_id in np.unique(slice_ids):
-            part = slice_ids == slice_id
-            for k in np.flatnonzero(part & is_object):
-                registrar.add_object_pose(times[k], poses[k, :3], poses[k, 3:])
-            now = part & tips
-            if now.any():
-                registrar.add_fingertips(times[now], poses[now, :3], finger_ids[now])
-            take(registrar.drain())
-
-    wanted = set(topics) | ({object_topic} if object_topic else set())
-    chunk = []
-    with BagMessages(bag, wanted) as source:
-        for topic, _, data in source:
-            chunk.append((topic, data))
-            if len(chunk) >= CHUNK:
-                process(chunk)
-                chunk = []
-        process(chunk)
-    take(registrar.finish())
-    if registered:
-        points = np.concatenate([r[0] for r in registered])
-        times = np.concatenate([r[1] for r in registered])
-        finger_ids = np.concatenate([r[2] for r in registered])
+    registration = BagRegistration(bag, values, keep_raw=True)
+    batches = [batch for batch in registration if len(batch[0])]
+    if batches:
+        points, times, finger_ids = (np.concatenate([b[k] for b in batches]) for k in range(3))
     else:
         points, times, finger_ids = np.empty((0, 3)), np.empty(0), np.empty(0, np.int64)
-    return BagPoints(np.concatenate(raw) if raw else np.empty((0, 3)),
-                     np.concatenate(raw_fingers) if raw_fingers else np.empty(0, np.int64),
-                     points, finger_ids.astype(np.int64), times, fingers, mode, registrar.stats)
+    raw = registration.raw
+    return BagPoints(np.concatenate([r[0] for r in raw]) if raw else np.empty((0, 3)),
+                     np.concatenate([r[1] for r in raw]).astype(np.int64) if raw
+                     else np.empty(0, np.int64),
+                     points, finger_ids.astype(np.int64), times, list(values['finger_names']),
+                     mode, registration.registrar.stats)
 
 
 def bag_topics(bag) -> dict[str, str]:
