@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 
 from inhand_tools import render
-from inhand_tools.ground_truth import (TRUTH_KEYS, default_frame, in_frame, load_truth,
-                                       save_truth, truth_path_for_bag)
-from inhand_tools.map_metrics import load_map
+from inhand_tools.ground_truth import (TRUTH_KEYS, GroundTruth, default_frame, in_frame,
+                                       load_truth, save_truth, truth_path_for_bag)
+from inhand_tools.map_metrics import MapCells, load_map
 from inhand_tools.map_metrics import main as map_metrics_main
 from inhand_tools.metrics import (Lattice, SurfaceTruth, cell_indices, explored_mask,
                                   infer_lattice, map_metrics, point_metrics)
+from inhand_tools.render_map import default_up, draw_all, map_view_box, raw_view_box, regions
 from inhand_tools.render_map import main as render_map_main
-from inhand_tools.render_map import regions
 from pose_sessions import sphere_session, sphere_surface_points, write_pose_bag
 from ros_helpers import WORKSPACE, executable_path
 
@@ -436,6 +436,109 @@ def test_higher_probability_cubes_are_darker():
         means.append(image[drawn].mean())
     assert means == sorted(means, reverse=True)
     assert means[0] - means[-1] > 60
+
+
+def framing_case():
+    """A 4 cm sphere's truth (surface samples, strays: 6 just off the surface, 5 far away)
+    and its map: the surface's cells (p 0.9) plus 3 confident cells 15-20 cm away."""
+    surface, normals = fibonacci_sphere(40_000, RADIUS)
+    near = normals[::6667][:6] * (RADIUS + 0.004)
+    far = np.array([[0.2, 0.0, 0.0], [0.0, -0.2, 0.05], [0.15, 0.15, 0.15],
+                    [-0.18, 0.1, -0.1], [0.0, 0.0, 0.25]])
+    strays = np.concatenate([near, far])
+    truth = GroundTruth('sphere', False, 240.0, 0, {}, surface, normals, surface[::400],
+                        np.zeros(len(surface[::400])), strays, np.zeros(len(strays)),
+                        np.zeros(1), np.zeros((1, 3)), np.array([[0.0, 0.0, 0.0, 1.0]]))
+    lattice = Lattice(H)
+    cells = np.concatenate([voxel_centres(surface, lattice),
+                            voxel_centres(np.array([[0.15, 0.15, 0.0], [0.16, 0.15, 0.0],
+                                                    [-0.1, -0.17, 0.05]]), lattice)])
+    probabilities = np.full(len(cells), 0.9)
+    probabilities[-3:] = 0.95
+    hits = np.full(len(cells), 3)
+    first = np.linspace(0.0, 10.0, len(cells))
+    return truth, MapCells(cells, probabilities, hits, first, lattice, 'npz', 'framing case',
+                           True)
+
+
+def test_view_box_is_the_truths_extent_not_the_strays():
+    truth, cells = framing_case()
+    box = map_view_box(cells, [0.0, 0.8], truth)
+    margin = render.default_margin(render.ViewBox(-np.full(3, RADIUS), np.full(3, RADIUS)))
+    assert margin == pytest.approx(0.01)
+    assert np.allclose(box.low, truth.surface_points.min(axis=0) - margin)
+    assert np.allclose(box.high, truth.surface_points.max(axis=0) + margin)
+    inside = box.contains(truth.stray_points)
+    assert inside.tolist() == [True] * 6 + [False] * 5
+    assert not box.contains(cells.centres[-3:]).any()
+    # Without the truth: a robust box of the confident cells, the far ones ignored; it
+    # holds the sphere's cells and is not much bigger than the sphere.
+    robust = map_view_box(cells, [0.0, 0.8])
+    assert robust.contains(cells.centres[:-3]).all()
+    assert not robust.contains(cells.centres[-3:]).any()
+    assert np.all(robust.extent < 2 * RADIUS + 2 * 0.02)
+    # Raw points: the dense cloud on the object framed, the far excursions not.
+    rng = np.random.default_rng(0)
+    raw = np.concatenate([truth.surface_points[::20] + [0.25, 0.0, 0.05],
+                          rng.uniform(-0.3, 0.3, (60, 3)) + [0.25, 0.0, 0.05]])
+    raw_box = raw_view_box(raw)
+    assert raw_box.contains(truth.surface_points[::20] + [0.25, 0.0, 0.05]).mean() > 0.97
+    assert np.all(raw_box.extent < 2 * RADIUS + 2 * 0.02)
+
+
+def test_camera_fills_the_panel_with_the_view_box():
+    truth, _ = framing_case()
+    box = render.box_of(truth.surface_points)
+    for view in (render.OBLIQUE, render.SIDE):
+        camera = render.Camera.for_box(view, box, 400, 'z')
+        pixels, _ = camera.project(truth.surface_points)
+        left, top, right, bottom = camera.area
+        assert camera.in_view(truth.surface_points).all()
+        span = np.ptp(pixels, axis=0) / np.array([right - left, bottom - top])
+        # The sphere with a 1 cm margin: 8 of 10 cm across the free area's smaller side.
+        assert span.max() == pytest.approx(0.8, abs=0.02)
+        assert not camera.in_view(truth.stray_points[6:]).all()
+
+
+def test_render_map_counts_what_is_outside_the_view(tmp_path, monkeypatch):
+    truth, cells = framing_case()
+    labels = []
+    annotate = render.annotate
+
+    def recording(image, camera, title=None, subtitle=None, frame_label=None):
+        labels.append((title, subtitle or ''))
+        return annotate(image, camera, title, subtitle, frame_label)
+
+    monkeypatch.setattr(render, 'annotate', recording)
+    written = draw_all(cells, tmp_path, [0.0, 0.6, 0.8], None, truth, 'object', size=240)
+    assert tmp_path / 'figure.png' in written
+    truth_panels = [subtitle for title, subtitle in labels if 'stray points' in subtitle]
+    cell_panels = [subtitle for title, subtitle in labels
+                   if subtitle.startswith(f'{len(cells.centres)} cells')]
+    # truth.png (2 views) and the figure's ground-truth panel; for each of the 3
+    # thresholds: map_above_<t>.png (2 views) and its panel of map_thresholds.png.
+    assert len(truth_panels) == 3 and len(cell_panels) == 9, labels
+    for subtitle in truth_panels:
+        assert '+ 5 stray points outside the view' in subtitle, subtitle
+    for subtitle in cell_panels:
+        assert subtitle.endswith('+ 3 cells outside the view'), subtitle
+    figure_truth = [subtitle for title, subtitle in labels if title == 'ground truth']
+    assert figure_truth == ['green: explored, red: strays\n+ 5 stray points outside the view']
+    # The strays near the surface are drawn (red), in front of the sphere or beside it.
+    image = cv2.imread(str(tmp_path / 'truth.png'))
+    red = (image[..., 2] > 180) & (image[..., 1] < 80) & (image[..., 0] < 80)
+    assert red.sum() > 6
+    assert render.outside_note(1, 'cells') == '+ 1 cell outside the view'
+    assert render.outside_note(812) == '+ 812 points outside the view'
+
+
+def test_pictures_stand_the_object_upright():
+    # The simulator's object frame has +z up; the tracker frame's z points down.
+    assert default_up('object') == 'z'
+    assert default_up('tracker') == '-z' and default_up(None) == '-z'
+    for up, vertical in (('z', [0.0, 0.0, 1.0]), ('-z', [0.0, 0.0, -1.0])):
+        camera = render.Camera(render.SIDE, np.zeros(3), 0.05, 200, up)
+        assert camera.direction(np.array(vertical))[0, 1] < -0.9 * camera.scale  # screen up
 
 
 def test_regions_most_explored_and_first_touched():

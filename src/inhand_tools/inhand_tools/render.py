@@ -2,9 +2,14 @@
 
 * Orthographic views: the scale is the same everywhere in a picture, so the scale bar (cm)
   is true for every part of the object. A view is an azimuth about the "up" axis and an
-  elevation above the horizontal; the data frame's "up" axis is configurable (default -z:
-  the tracker frame's z points down, and the object frame is the object sensor's frame,
-  usually mounted the same way).
+  elevation above the horizontal; the data frame's "up" axis is configurable (-z for the
+  tracker frame, whose z points down; +z for the simulator's object frames, where the
+  object stands on its +z).
+* Framing: a panel shows a view box (:class:`ViewBox`, axis-aligned in the data frame) as
+  large as the panel allows (:meth:`Camera.for_box`), leaving room for the labels. Boxes
+  come from the object, not from everything recorded (:func:`robust_box`), since the
+  fingertips travel far off the object between strokes; what lies outside the box is not
+  drawn, and the callers say how much that was (:func:`outside_note`).
 * Map cells are drawn as shaded cubes, back to front (painter's algorithm: for equal
   axis-aligned cubes on a lattice seen orthographically, sorting the centres by depth is
   a correct order). Geometry is computed for all cells at once; only the polygon fills
@@ -25,7 +30,8 @@ import numpy as np
 
 __all__ = ['View', 'OBLIQUE', 'SIDE', 'TOP', 'Camera', 'UP_AXES', 'probability_colours',
            'render_cells', 'render_points', 'annotate', 'titled', 'hstack', 'grid_figure',
-           'probability_legend', 'key_legend', 'BACKGROUND', 'bounds_of']
+           'probability_legend', 'key_legend', 'BACKGROUND', 'bounds_of', 'ViewBox',
+           'box_of', 'robust_box', 'default_margin', 'outside_note']
 
 BACKGROUND = (255, 255, 255)
 SUPERSAMPLE = 2
@@ -50,8 +56,11 @@ class View:
     elevation: float  # degrees above the horizontal
 
 
-OBLIQUE = View('oblique view', -35.0, 28.0)
-SIDE = View('side view', 55.0, 8.0)
+# Display x is the object's length (its front towards +x, e.g. the cat's head): the oblique
+# view looks from its right side and a little from the front, from above; the side view is
+# nearly a profile (front to the right), from slightly above.
+OBLIQUE = View('oblique view', -58.0, 24.0)
+SIDE = View('side view', -82.0, 7.0)
 TOP = View('top view', 0.0, 89.9)
 
 # Sequential colours, light to dark (RGB anchors), for probabilities 0 .. 1.
@@ -91,9 +100,109 @@ def bounds_of(*point_sets, robust: bool = False) -> tuple[np.ndarray, float]:
     return centre, max(radius, 0.005)
 
 
+@dataclass(frozen=True, eq=False)
+class ViewBox:
+    """What a panel shows: an axis-aligned box of the data frame (metres), ``low`` to
+    ``high``; nothing outside it is drawn. ``fit``: points that the camera frames tightly
+    (the object's, e.g. surface samples), with ``margin`` (m) of room around them; the
+    box's corners if None."""
+
+    low: np.ndarray
+    high: np.ndarray
+    fit: np.ndarray | None = None
+    margin: float = 0.0
+
+    FIT_POINTS = 20000  # at most this many framing points are kept (evenly strided)
+
+    def __post_init__(self):
+        object.__setattr__(self, 'low', np.asarray(self.low, dtype=float).reshape(3))
+        object.__setattr__(self, 'high', np.asarray(self.high, dtype=float).reshape(3))
+        if self.fit is not None:
+            fit = _finite(self.fit)
+            fit = fit[::max(1, -(-len(fit) // self.FIT_POINTS))]
+            object.__setattr__(self, 'fit', fit if len(fit) else None)
+
+    @property
+    def centre(self) -> np.ndarray:
+        return (self.low + self.high) / 2.0
+
+    @property
+    def extent(self) -> np.ndarray:
+        return self.high - self.low
+
+    def corners(self) -> np.ndarray:
+        bounds = (self.low, self.high)
+        return np.array([[bounds[i][0], bounds[j][1], bounds[k][2]]
+                         for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+
+    def grown(self, margin) -> 'ViewBox':
+        """The box grown by ``margin`` (m, scalar or per axis), framing the same points
+        with that much more room."""
+        margin = np.asarray(margin, dtype=float)
+        return ViewBox(self.low - margin, self.high + margin, self.fit,
+                       self.margin + float(np.max(margin)))
+
+    def contains(self, points) -> np.ndarray:
+        """Mask of the points (n, 3) inside the box (non-finite points are outside)."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        with np.errstate(invalid='ignore'):
+            return np.all((points >= self.low) & (points <= self.high), axis=1)
+
+
+def _finite(points) -> np.ndarray:
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    return points[np.all(np.isfinite(points), axis=1)]
+
+
+def default_margin(box: ViewBox) -> float:
+    """Room around an object's box (m): 8 % of its largest extent, at least 1 cm."""
+    return max(0.01, 0.08 * float(box.extent.max()))
+
+
+def box_of(points, margin: float | None = None) -> ViewBox | None:
+    """The bounding box of the (finite) points grown by ``margin`` (default:
+    :func:`default_margin`), framing those points; None without points."""
+    points = _finite(points)
+    if len(points) == 0:
+        return None
+    box = ViewBox(points.min(axis=0), points.max(axis=0), points)
+    return box.grown(default_margin(box) if margin is None else margin)
+
+
+def robust_box(points, low: float = 5.0, high: float = 95.0, reach: float = 0.02,
+               keep: float = 1.0, margin: float | None = None) -> ViewBox | None:
+    """A box around where most of the points are, ignoring far, sparse excursions.
+
+    The ``low``-``high`` percentile box of the points (per axis) finds the dense region;
+    the points within ``reach`` (m) of it are the object's (its extremities included);
+    their ``keep``-(100 - ``keep``) percentile box, grown by ``margin`` (default:
+    :func:`default_margin`), is the result, framing the points inside it. None without
+    points.
+    """
+    points = _finite(points)
+    if len(points) == 0:
+        return None
+    core = ViewBox(*np.percentile(points, [low, high], axis=0)).grown(reach)
+    near = points[core.contains(points)]
+    if len(near) == 0:
+        near = points
+    box = ViewBox(*np.percentile(near, [keep, 100.0 - keep], axis=0))
+    box = ViewBox(box.low, box.high, near[box.contains(near)])
+    return box.grown(default_margin(box) if margin is None else margin)
+
+
+def outside_note(count: int, what: str = 'points') -> str:
+    """Subtitle text for what a panel leaves out: '+ 812 points outside the view'."""
+    if count == 1 and what.endswith('s'):
+        what = what[:-1]
+    return f'+ {count:,} {what} outside the view'
+
+
 class Camera:
     """Orthographic camera framing a ball (``centre``, ``radius``) of the data frame in a
-    ``size`` x ``size`` panel."""
+    ``size`` x ``size`` panel; :meth:`for_box` frames a :class:`ViewBox` instead.
+    ``offset`` (pixels, right and down) moves the picture of ``centre`` off the panel's
+    centre."""
 
     def __init__(self, view: View, centre, radius: float, size: int, up: str = '-z',
                  fill: float = 0.86):
@@ -109,6 +218,42 @@ class Camera:
         # Rows: right, up, towards the camera, in data coordinates.
         self.basis = np.stack([right, screen_up, eye]) @ self.to_display
         self.scale = fill * self.size / 2.0 / max(radius, 1e-6)  # pixels per metre
+        self.offset = np.zeros(2)
+        self.area = (0.0, 0.0, float(self.size), float(self.size))
+
+    @classmethod
+    def for_box(cls, view: View, box: ViewBox, size: int, up: str = '-z') -> 'Camera':
+        """The camera showing ``box`` as large as it fits in the panel's free area (below
+        the title and subtitles, above the scale bar, a little in from the sides): its
+        framing points with the box's margin around them, else its corners."""
+        camera = cls(view, box.centre, 1.0, size, up)
+        if box.fit is not None:
+            local = (box.fit - camera.centre) @ camera.basis.T
+            low = local[:, :2].min(axis=0) - box.margin
+            high = local[:, :2].max(axis=0) + box.margin
+        else:
+            local = (box.corners() - camera.centre) @ camera.basis.T
+            low, high = local[:, :2].min(axis=0), local[:, :2].max(axis=0)
+        width, height = np.maximum(high - low, 1e-6)
+        top, bottom = min(64.0, 0.3 * size), min(28.0, 0.14 * size)
+        side = 0.03 * size
+        camera.scale = min((size - 2 * side) / width, (size - top - bottom) / height)
+        # The middle of the framed extent goes to the middle of the free area.
+        middle = (low + high) / 2.0
+        camera.offset = np.array([-middle[0] * camera.scale,
+                                  (top - bottom) / 2.0 + middle[1] * camera.scale])
+        camera.area = (side, top, size - side, size - bottom)
+        return camera
+
+    def in_view(self, points, inset: float = 0.0) -> np.ndarray:
+        """Mask of the points whose pictures fall inside the panel's ``area`` (left, top,
+        right, bottom pixels; the free area of :meth:`for_box`, else the whole panel), at
+        least ``inset`` pixels in from its edges."""
+        pixels, _ = self.project(points)
+        left, top, right, bottom = np.array(self.area) + np.array([1, 1, -1, -1]) * inset
+        with np.errstate(invalid='ignore'):
+            return ((pixels[:, 0] >= left) & (pixels[:, 0] <= right)
+                    & (pixels[:, 1] >= top) & (pixels[:, 1] <= bottom))
 
     def project(self, points, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Pixel coordinates (n, 2) float (at ``factor`` times the size) and depth (n,),
@@ -116,8 +261,8 @@ class Camera:
         local = (np.asarray(points, dtype=float).reshape(-1, 3) - self.centre) @ self.basis.T
         half = self.size * factor / 2.0
         pixels = np.empty((len(local), 2))
-        pixels[:, 0] = half + local[:, 0] * self.scale * factor
-        pixels[:, 1] = half - local[:, 1] * self.scale * factor
+        pixels[:, 0] = half + (self.offset[0] + local[:, 0] * self.scale) * factor
+        pixels[:, 1] = half + (self.offset[1] - local[:, 1] * self.scale) * factor
         return pixels, local[:, 2]
 
     def light_in_data(self) -> np.ndarray:
@@ -269,13 +414,15 @@ def _length_label(metres: float) -> str:
 
 def annotate(image: np.ndarray, camera: Camera, title: str | None = None,
              subtitle: str | None = None, frame_label: str | None = None) -> np.ndarray:
-    """A panel's labels: title, subtitle, a scale bar (cm) and the data frame's axes."""
+    """A panel's labels: title, subtitle (lines separated by newlines), a scale bar (cm)
+    and the data frame's axes."""
     image = image.copy()
     size = camera.size
     if title:
         _text(image, title, (10, 22), 0.6, TEXT, 1)
-    if subtitle:
-        _text(image, subtitle, (10, 42), 0.45, (90, 90, 90))
+    for line, text in enumerate((subtitle or '').split('\n')):
+        if text:
+            _text(image, text, (10, 42 + 17 * line), 0.45, (90, 90, 90))
     # Scale bar, bottom left.
     length = _nice_length(0.28 * size / camera.scale)
     bar = int(round(length * camera.scale))

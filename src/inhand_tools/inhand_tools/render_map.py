@@ -1,7 +1,7 @@
 """``render_map``: PNG pictures of a map like the paper's figures 4, 5 and 8.
 
     render_map MAP [--bag BAG] [--truth TRUTH.npz] --output DIR
-               [--thresholds 0 0.6 0.8] [--frame object|tracker] [--up -z]
+               [--thresholds 0 0.6 0.8] [--frame object|tracker] [--up z]
                [--size 480] [--top-fraction 0.1] [--first-fraction 0.1]
 
 MAP is an NPZ (every touched cell), a PLY, or a bag with a recorded occupancy cloud (see
@@ -18,9 +18,15 @@ scale bar in cm, the data frame's axes drawn in the corner):
                          the truth: --truth or the bag's BAG.truth.npz sidecar)
   figure.png             every picture's oblique view in one figure
 
-Each view is SIZE pixels square (two views side by side: 2 x SIZE wide). The "up" axis of
-the pictures is -z by default (the tracker's z points down). The paths written are printed.
-Exit status: 0 done, 2 bad input.
+Each view is SIZE pixels square (two views side by side: 2 x SIZE wide). Every panel is
+framed on the object, not on everything the fingertips went through (they travel far off
+the object between strokes and during re-grasps): all map-frame panels show one view box,
+the truth's surface with a margin (else the map's confident cells, robustly), and the raw
+points their own (where most of them are); what falls outside a panel is not drawn and its
+subtitle says how much ("+ 812 points outside the view"). The "up" axis of the map's
+pictures is +z in the object frame (the simulator's objects stand on their +z) and -z in
+the tracker frame (its z points down; also the raw points' up); --up overrides it. The
+paths written are printed. Exit status: 0 done, 2 bad input.
 """
 
 from __future__ import annotations
@@ -76,13 +82,27 @@ def regions(hits, first_touch, top_fraction: float = 0.1, first_fraction: float 
     return most, first, hit_cut, first_cut
 
 
-def _views(draw, camera_for, subtitle: str | None, frame_label: str) -> list:
-    """The oblique and the side view of ``draw(camera)``, labelled."""
+def _views(draw, camera_for, frame_label: str, first_line: str | None = None,
+           views=(OBLIQUE, SIDE), title: str | None = None) -> list:
+    """Panels of ``draw(camera) -> (image, note)`` for each view (oblique and side by
+    default), titled with the view's name (or ``title``); the subtitle is ``first_line``
+    over the note (what the panel leaves out)."""
     panels = []
-    for view in (OBLIQUE, SIDE):
+    for view in views:
         camera = camera_for(view)
-        panels.append(render.annotate(draw(camera), camera, view.name, subtitle, frame_label))
+        image, note = draw(camera)
+        panels.append(render.annotate(image, camera, title or view.name,
+                                      _lines(first_line, note), frame_label))
     return panels
+
+
+def _shown(camera: Camera, box: render.ViewBox, points, inset: float = 0.0) -> np.ndarray:
+    """Mask of the points a panel draws: inside the view box and pictured inside the
+    panel's free area (``inset`` pixels in from its edges)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    inside = box.contains(points)
+    inside[inside] = camera.in_view(points[inside], inset)
+    return inside
 
 
 def _write(path: Path, image: np.ndarray, written: list) -> None:
@@ -106,82 +126,154 @@ def _finger_key(names: list[str]) -> list:
             for k, name in enumerate(names)]
 
 
+def _lines(*parts) -> str | None:
+    """Subtitle lines (the empty ones dropped), or None."""
+    text = '\n'.join(part for part in parts if part)
+    return text or None
+
+
+def _outside(inside: np.ndarray, what: str) -> str | None:
+    """'+ N <what> outside the view' when some are outside, else None."""
+    count = int(np.count_nonzero(~np.asarray(inside, dtype=bool)))
+    return render.outside_note(count, what) if count else None
+
+
+def default_up(frame: str | None) -> str:
+    """The data axis that points up in the pictures of a map in ``frame``: +z in the object
+    frame (the simulator's objects stand on their +z), -z in the tracker frame (its z
+    points down) and when the frame is not known."""
+    return 'z' if frame == 'object' else '-z'
+
+
+def map_view_box(cells: MapCells, thresholds, truth=None) -> render.ViewBox:
+    """What every map-frame panel shows: the object, not the strays.
+
+    With the truth (in the map's frame): its surface's bounding box. Else a robust box of
+    the centres of the cells above the highest threshold that has any (all touched cells
+    if none has): their 5th-95th percentile box finds the object, the cells within 1.5 cm
+    of it are its cells (so that thin extremities stay in view; a 2nd-98th percentile box
+    is not enough: a few confident cells left by a stroke far from the object may be more
+    than 2 % of them), and the 0.5-99.5 percentile box of those, grown by half a cell, is
+    the object's. Either grown by a margin (:func:`render.default_margin`).
+    """
+    if truth is not None and len(truth.surface_points):
+        box = render.box_of(truth.surface_points)
+        if box is not None:
+            return box
+    resolution = cells.lattice.resolution
+    centres = cells.centres
+    for threshold in sorted(thresholds, reverse=True):
+        above = cells.centres[cells.probabilities > threshold]
+        if len(above):
+            centres = above
+            break
+    box = render.robust_box(centres, 5.0, 95.0, reach=0.015, keep=0.5, margin=0.0)
+    if box is None:
+        return render.ViewBox(np.full(3, -0.01), np.full(3, 0.01))
+    return box.grown(render.default_margin(box) + resolution / 2.0)
+
+
+def raw_view_box(raw) -> render.ViewBox | None:
+    """What the raw-point panels show (tracker frame): where most fingertip positions are
+    (their 5th-95th percentile box), widened to the points within 2 cm of it, cut to
+    those points' 1st-99th percentiles (the object, not the lifts and re-grasps), grown by
+    a margin."""
+    return render.robust_box(raw, 5.0, 95.0, reach=0.02, keep=1.0)
+
+
 def draw_all(cells: MapCells, output: Path, thresholds, bag_points=None, truth=None,
-             frame: str | None = None, up: str = '-z', size: int = 480,
+             frame: str | None = None, up: str | None = None, size: int = 480,
              top_fraction: float = 0.1, first_fraction: float = 0.1,
-             name: str = 'map') -> list[Path]:
-    """Every picture of the module docstring that the inputs allow; returns the paths."""
+             name: str = 'map', raw_up: str | None = None) -> list[Path]:
+    """Every picture of the module docstring that the inputs allow; returns the paths.
+
+    ``up``: the map frame's up axis (default :func:`default_up` of ``frame``); ``raw_up``:
+    the tracker frame's, for the raw points (default -z, or ``up`` for a tracker-frame map).
+    """
     output.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     overview: list[np.ndarray] = []
     frame_label = FRAME_LABELS.get(frame, 'map frame')
     width = 2 * size
+    up = up or default_up(frame)
+    raw_up = raw_up or (up if frame == 'tracker' else '-z')
     registered = None if bag_points is None else bag_points.registered
-    # One framing for every map-frame picture, so they compare at a glance; far outliers
-    # among the registered points should not shrink the object to a dot (robust bounds).
-    if registered is not None and len(registered):
-        centre, radius = render.bounds_of(cells.centres, registered, robust=True)
-    else:
-        centre, radius = render.bounds_of(cells.centres)
-    radius += cells.lattice.resolution
+    resolution = cells.lattice.resolution
+    # One view box for every map-frame picture, so they compare at a glance: the object's
+    # (the truth's surface, or the map's confident cells), not everything the fingertips
+    # went through; what lies outside is left out and counted in the subtitles.
+    box = map_view_box(cells, thresholds, truth)
+    cell_box = box.grown(resolution / 2.0)  # a cell is drawn if its cube reaches the box
 
     def map_camera(view):
-        return Camera(view, centre, radius, size, up)
+        return Camera.for_box(view, box, size, up)
 
     if bag_points is not None and len(bag_points.raw):
-        raw_centre, raw_radius = render.bounds_of(bag_points.raw, robust=True)
-        colours = _finger_colours(bag_points.raw_fingers)
-        raw_radius_px = _splat_radius(len(bag_points.raw))
-        panels = _views(lambda cam: render.render_points(cam, bag_points.raw, colours,
-                                                         raw_radius_px),
-                        lambda view: Camera(view, raw_centre, raw_radius, size, up),
-                        None, FRAME_LABELS['tracker'])
+        raw_box = raw_view_box(bag_points.raw)
+        raw_colours = _finger_colours(bag_points.raw_fingers)
+        raw_radius_px = _splat_radius(np.count_nonzero(raw_box.contains(bag_points.raw)))
+
+        def raw_camera(view):
+            return Camera.for_box(view, raw_box, size, raw_up)
+
+        def draw_raw(cam):
+            shown = _shown(cam, raw_box, bag_points.raw)
+            return (render.render_points(cam, bag_points.raw[shown], raw_colours[shown],
+                                         raw_radius_px), _outside(shown, 'points'))
+
+        panels = _views(draw_raw, raw_camera, FRAME_LABELS['tracker'])
         footer = render.key_legend(width, _finger_key(bag_points.finger_names))
         _write(output / 'raw_points.png', render.titled(
             render.hstack(panels), f'Raw fingertip positions ({len(bag_points.raw):,} points, '
             'tracker frame)', footer), written)
-        overview.append(render.annotate(
-            render.render_points(Camera(OBLIQUE, raw_centre, raw_radius, size, up),
-                                 bag_points.raw, colours, raw_radius_px),
-            Camera(OBLIQUE, raw_centre, raw_radius, size, up), 'raw points',
-            f'{len(bag_points.raw):,} fingertip positions', FRAME_LABELS['tracker']))
+        overview += _views(draw_raw, raw_camera, FRAME_LABELS['tracker'],
+                           f'{len(bag_points.raw):,} fingertip positions', (OBLIQUE,),
+                           'raw points')
     if registered is not None and len(registered):
-        colours = _finger_colours(bag_points.registered_fingers)
-        unique = len(np.unique(np.round(registered, 4), axis=0))
-        reg_radius_px = _splat_radius(unique)
-        panels = _views(lambda cam: render.render_points(cam, registered, colours,
-                                                         reg_radius_px),
-                        map_camera, None, frame_label)
+        reg_colours = _finger_colours(bag_points.registered_fingers)
+        in_box = registered[box.contains(registered)]
+        reg_radius_px = _splat_radius(len(np.unique(np.round(in_box, 4), axis=0)))
+
+        def draw_registered(cam):
+            shown = _shown(cam, box, registered)
+            return (render.render_points(cam, registered[shown], reg_colours[shown],
+                                         reg_radius_px), _outside(shown, 'points'))
+
+        panels = _views(draw_registered, map_camera, frame_label)
         footer = render.key_legend(width, _finger_key(bag_points.finger_names))
         _write(output / 'registered_points.png', render.titled(
             render.hstack(panels), f'Registered fingertip positions ({len(registered):,} '
             f'points, {bag_points.mode} registration, {frame_label})', footer), written)
-        overview.append(render.annotate(
-            render.render_points(map_camera(OBLIQUE), registered, colours, reg_radius_px),
-            map_camera(OBLIQUE), 'registered points',
-            f'{len(registered):,} points, {bag_points.mode} registration', frame_label))
+        overview += _views(draw_registered, map_camera, frame_label,
+                           f'{len(registered):,} points, {bag_points.mode} registration',
+                           (OBLIQUE,), 'registered points')
+
+    def cell_drawer(centres, colours):
+        """draw(camera) of the cells at ``centres``: those whose cubes reach into the view
+        box and whose centres are pictured in the panel's free area."""
+        def draw(cam):
+            # The whole cube in the free area: its centre well inside.
+            shown = _shown(cam, cell_box, centres, 0.6 * resolution * cam.scale)
+            return (render.render_cells(cam, centres[shown], resolution, colours[shown]),
+                    _outside(shown, 'cells'))
+        return draw
 
     threshold_panels = []
     lowest = float(cells.probabilities.min())
     for threshold in thresholds:
         keep = cells.probabilities > threshold
-        centres = cells.centres[keep]
-        colours = render.probability_colours(cells.probabilities[keep])
+        draw = cell_drawer(cells.centres[keep],
+                           render.probability_colours(cells.probabilities[keep]))
         note = f'{np.count_nonzero(keep)} cells'
         if not cells.complete and threshold < lowest:
             note += f' (file holds only p > {lowest:.2f})'
-        label = f'map, p > {threshold:g}'
-        panels = _views(lambda cam: render.render_cells(cam, centres, cells.lattice.resolution,
-                                                        colours),
-                        map_camera, note, frame_label)
+        panels = _views(draw, map_camera, frame_label, note)
         _write(output / f'map_above_{threshold:g}.png', render.titled(
             render.hstack(panels), f'Probabilistic map: cells with probability > {threshold:g} '
             f'({note})', render.probability_legend(width, thresholds=tuple(
                 t for t in thresholds if 0 < t < 1))), written)
-        camera = map_camera(OBLIQUE)
-        threshold_panels.append(render.annotate(
-            render.render_cells(camera, centres, cells.lattice.resolution, colours), camera,
-            label, note, frame_label))
+        threshold_panels += _views(draw, map_camera, frame_label, note, (OBLIQUE,),
+                                   f'map, p > {threshold:g}')
     _write(output / 'map_thresholds.png', render.grid_figure(
         threshold_panels, len(threshold_panels),
         f'Probabilistic map at thresholds {", ".join(f"> {t:g}" for t in thresholds)} '
@@ -206,18 +298,14 @@ def draw_all(cells: MapCells, output: Path, thresholds, bag_points=None, truth=N
         keys.append((FIRST_COLOUR, f'first touched: earliest {first_fraction:.0%} '
                                    f'(first {first_cut:.2f} s, {np.count_nonzero(first)} cells)'))
     # Highlighted cells are drawn whatever their probability (a first touch may be one hit).
-    centres, region_colours = cells.centres[show], colours[show]
+    draw = cell_drawer(cells.centres[show], colours[show])
     subtitle = None if np.isfinite(hit_cut) else 'the map has no hit counts'
-    panels = _views(lambda cam: render.render_cells(cam, centres, cells.lattice.resolution,
-                                                    region_colours),
-                    map_camera, subtitle, frame_label)
+    panels = _views(draw, map_camera, frame_label, subtitle)
     _write(output / 'regions.png', render.titled(
         render.hstack(panels), 'Most explored region and first region touched',
         render.key_legend(width, keys)), written)
-    camera = map_camera(OBLIQUE)
-    overview.append(render.annotate(
-        render.render_cells(camera, centres, cells.lattice.resolution, region_colours), camera,
-        'most explored / first touched', 'orange: most hits, purple: first', frame_label))
+    overview += _views(draw, map_camera, frame_label, 'orange: most hits, purple: first',
+                       (OBLIQUE,), 'most explored / first touched')
 
     if truth is not None:
         step = max(1, len(truth.surface_points) // 60000)
@@ -226,32 +314,31 @@ def draw_all(cells: MapCells, output: Path, thresholds, bag_points=None, truth=N
         explored = explored_mask(surface, truth.contacts, 0.005)
         colours = np.where(explored[:, None], np.array(EXPLORED_SURFACE_COLOUR, dtype=float),
                            np.array(SURFACE_COLOUR, dtype=float))
-        stray_note = f'{len(truth.stray_points)} stray points'
-
         normals = truth.surface_normals[::step]
 
         def draw_truth(cam):
-            # Lambert shading from the surface normals (facing away: as dim as the dimmest).
+            # Lambert shading from the surface normals (facing away: as dim as the dimmest);
+            # the strays in view drawn with the surface (z-buffered: the object hides those
+            # behind it).
             light = np.clip(normals @ cam.light_in_data(), 0.0, 1.0)
             shaded = colours * (0.55 + 0.45 * light)[:, None]
-            image = render.render_points(cam, surface, shaded, 1.5, 0.0)
-            if len(truth.stray_points):
-                pixels, _ = cam.project(truth.stray_points)
-                for x, y in np.round(pixels).astype(int):
-                    cv2.drawMarker(image, (int(x), int(y)), STRAY_COLOUR, cv2.MARKER_TILTED_CROSS,
-                                   9, 2, cv2.LINE_AA)
-            return image
+            shown = _shown(cam, box, truth.stray_points)
+            points = np.concatenate([surface, truth.stray_points[shown]])
+            point_colours = np.concatenate([shaded, np.tile(np.array(STRAY_COLOUR, float),
+                                                            (np.count_nonzero(shown), 1))])
+            return (render.render_points(cam, points, point_colours, 1.5, 0.0),
+                    _outside(shown, 'stray points'))
 
-        panels = _views(draw_truth, map_camera, stray_note, frame_label)
+        panels = _views(draw_truth, map_camera, frame_label,
+                        f'{len(truth.stray_points)} stray points')
         keys = [(SURFACE_COLOUR, 'true surface'),
                 (EXPLORED_SURFACE_COLOUR, 'explored (within 5 mm of a true contact)'),
                 (STRAY_COLOUR, 'stray fingertip positions')]
         _write(output / 'truth.png', render.titled(
             render.hstack(panels), f'Ground truth: {truth.object_name} ({frame_label})',
             render.key_legend(width, keys)), written)
-        camera = map_camera(OBLIQUE)
-        overview.append(render.annotate(draw_truth(camera), camera, 'ground truth',
-                                        'green: explored, red: strays', frame_label))
+        overview += _views(draw_truth, map_camera, frame_label, 'green: explored, red: strays',
+                           (OBLIQUE,), 'ground truth')
 
     columns = {1: 1, 2: 2, 3: 3, 4: 2, 5: 3, 6: 3}.get(len(overview), 4)
     _write(output / 'figure.png', render.grid_figure(
@@ -275,8 +362,9 @@ def main(argv=None) -> int:
                         help='probability thresholds of the map pictures (default 0 0.6 0.8)')
     parser.add_argument('--frame', choices=FRAMES, help='frame the map is in (default: from '
                         'the truth; else object if the bag has an object sensor)')
-    parser.add_argument('--up', choices=sorted(render.UP_AXES), default='-z',
-                        help='axis of the data that points up in the pictures (default -z)')
+    parser.add_argument('--up', choices=sorted(render.UP_AXES),
+                        help='axis of the map frame that points up in the pictures (default: '
+                        'z in the object frame, -z in the tracker frame or an unknown one)')
     parser.add_argument('--size', type=int, default=480, help='pixels per view (default 480)')
     parser.add_argument('--top-fraction', type=float, default=0.1,
                         help='most explored = this fraction of cells with the most hits')
