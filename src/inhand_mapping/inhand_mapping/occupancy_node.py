@@ -22,7 +22,6 @@ from pathlib import Path
 from geometry_msgs.msg import PointStamped
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
@@ -33,13 +32,10 @@ from inhand_mapping.clouds import unpack_registered
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, make_grid
 from inhand_mapping.occupancy import WindowedIntegrator
+from inhand_mapping.qos import DATA_QOS, LATCHED_QOS, MAP_FRAME
 
-MAP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# KEEP_ALL: a slow map update holds the registration node back instead of losing points.
-POINTS_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
-                        reliability=ReliabilityPolicy.RELIABLE)
-MAP_FRAME = 'object'
+MAP_QOS = LATCHED_QOS
+POINTS_QOS = DATA_QOS
 
 
 class OccupancyNode(Node):

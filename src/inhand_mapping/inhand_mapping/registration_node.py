@@ -20,7 +20,6 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from inhand_common.node_runner import run_node
@@ -29,17 +28,10 @@ from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
 from inhand_mapping.clouds import pack_registered
 from inhand_mapping.mapping_config import REGISTRATION_PARAMETERS, make_registrar
+from inhand_mapping.qos import DATA_QOS, LATCHED_QOS, MAP_FRAME
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 
-# KEEP_ALL on the data path: a reliable KEEP_ALL reader only acknowledges what it has room
-# for, so a fast publisher (bag_replay --fast) is held back instead of losing samples.
-POSE_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
-                      reliability=ReliabilityPolicy.RELIABLE)
-POINTS_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
-                        reliability=ReliabilityPolicy.RELIABLE)
-LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-MAP_FRAME = 'object'
+POSE_QOS = POINTS_QOS = DATA_QOS
 
 
 class RegistrationNode(Node):

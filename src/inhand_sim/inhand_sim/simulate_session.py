@@ -15,25 +15,15 @@ Exit status: 0 written, 1 could not write, 2 bad arguments or output exists.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 
+from inhand_common.cli_types import number
 from inhand_sim.objects import OBJECT_NAMES
 from inhand_sim.session import SessionSettings, simulate, truth_path, write_session
 
 EXIT_WRITE_FAILED = 1
 EXIT_BAD_ARGUMENTS = 2
-
-
-def _positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number of seconds') from None
-    if not math.isfinite(value) or value <= 0 or value > 24 * 3600:
-        raise argparse.ArgumentTypeError(f'{text} s: the duration must be in (0, 86400] seconds')
-    return value
 
 
 def _rate(text: str) -> float:
@@ -54,16 +44,6 @@ def _seed(text: str) -> int:
         raise argparse.ArgumentTypeError(f'{text!r} is not an integer seed') from None
     if value < 0 or value >= 2 ** 63:
         raise argparse.ArgumentTypeError(f'seed {text} must be in [0, 2^63)')
-    return value
-
-
-def _noise(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number of millimetres') from None
-    if not math.isfinite(value) or not 0.0 <= value <= 50.0:
-        raise argparse.ArgumentTypeError(f'{text} mm: the noise must be in [0, 50] mm')
     return value
 
 
@@ -90,9 +70,11 @@ def make_parser() -> argparse.ArgumentParser:
                              'the object (station object2)')
     parser.add_argument('--rate', type=_rate, required=True, metavar='15|240',
                         help='tracker frame rate in Hz')
-    parser.add_argument('--duration', type=_positive_seconds, required=True, metavar='SECONDS')
+    parser.add_argument('--duration', type=number(above=0.0, at_most=24 * 3600, unit='seconds'),
+                        required=True, metavar='SECONDS')
     parser.add_argument('--seed', type=_seed, required=True, metavar='N')
-    parser.add_argument('--noise-mm', type=_noise, default=1.0, metavar='MM',
+    parser.add_argument('--noise-mm', type=number(at_least=0.0, at_most=50.0, unit='mm'),
+                        default=1.0, metavar='MM',
                         help='fingertip tracker noise, standard deviation per axis (default 1.0)')
     parser.add_argument('--output', required=True, metavar='bags/NAME',
                         help='bag folder to write; the ground truth goes to NAME.truth.npz beside it')

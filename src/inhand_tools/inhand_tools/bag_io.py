@@ -12,14 +12,14 @@ PoseStamped, and the tools need every topic, its type and its recorded QoS.)
 
 from __future__ import annotations
 
-import argparse
 import importlib
-import math
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
+
+from inhand_common.cli_types import non_negative_float, positive_float  # re-exported
 
 __all__ = ['BagError', 'BagSource', 'BagTopic', 'Progress', 'UnknownMessageType',
            'message_class', 'non_negative_float', 'positive_float', 'relative_name']
@@ -226,25 +226,3 @@ class Progress:
             self.stream.write('\n')
             self.stream.flush()
             self._drawn = False
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"'{text}' must be a finite number > 0")
-    return value
-
-
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"'{text}' must be a finite number >= 0")
-    return value

@@ -20,6 +20,7 @@ import sys
 import threading
 import time
 
+from inhand_common.cli_types import positive_float
 from polhemus_liberty.emulator import LibertyEmulator
 from polhemus_liberty.motion import open_motion_source
 
@@ -68,16 +69,6 @@ def _station_list(text: str) -> list[int]:
     return stations
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float('nan')
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f'{text!r}: expected a number > 0')
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='liberty_emulator', description=__doc__.split('\n\n')[0],
@@ -90,9 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='active station numbers (default 1,2,3,4)')
     parser.add_argument('--station-names', default='thumb,index,middle,object',
                         help='names of the stations, for bags: polhemus/<name>/pose')
-    parser.add_argument('--rate', type=_positive, default=None,
+    parser.add_argument('--rate', type=positive_float, default=None,
                         help='stream at this rate instead of the device\'s 120/240 Hz')
-    parser.add_argument('--duration', type=_positive, default=None,
+    parser.add_argument('--duration', type=positive_float, default=None,
                         help='stop after this many seconds (default: run until Ctrl-C)')
     parser.add_argument('--fault', type=parse_fault, action='append', default=[],
                         metavar='KIND[:ARG]@SECONDS', help='schedule a fault (repeatable)')
