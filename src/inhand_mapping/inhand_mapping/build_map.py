@@ -21,46 +21,19 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from inhand_common.bag_source import BagSource, Progress
 from inhand_common.parameters import ParameterError, load_yaml_parameters, validate
 from inhand_mapping.clouds import pack_registered, unpack_registered
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import (OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS,
                                            make_grid, make_registrar)
 from inhand_mapping.occupancy import WindowedIntegrator
-from inhand_mapping.registration import HISTORY_SECONDS
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
+from inhand_mapping.registration import HISTORY_SECONDS
 
 EXIT_TRUNCATED = 1
 EXIT_BAD_INPUT = 2
 CHUNK = 4096  # messages decoded and registered together
-
-
-class Progress:
-    """A progress line on stderr: redrawn in place on a terminal, every 10% otherwise."""
-
-    def __init__(self, total: int, stream=sys.stderr):
-        self.total = max(total, 1)
-        self.stream = stream
-        self.start = time.monotonic()
-        self.tty = stream.isatty()
-        self._last_decile = -1
-
-    def update(self, done: int) -> None:
-        fraction = min(done / self.total, 1.0)
-        elapsed = time.monotonic() - self.start
-        rate = done / elapsed if elapsed > 0 else 0.0
-        line = (f'build_map: [{"#" * int(fraction * 30):<30}] {fraction:6.1%} '
-                f'{done}/{self.total} messages, {rate:,.0f} msg/s')
-        if self.tty:
-            self.stream.write('\r' + line)
-            self.stream.flush()
-        elif int(fraction * 10) > self._last_decile:
-            self._last_decile = int(fraction * 10)
-            print(line, file=self.stream, flush=True)
-
-    def close(self) -> None:
-        if self.tty:
-            self.stream.write('\n')
 
 
 def parse_overrides(pairs: list[str]) -> dict:
@@ -89,87 +62,51 @@ def load_parameters(config: str | None, overrides: dict) -> tuple[dict, dict]:
 
 
 class BagMessages:
-    """The messages of ``topics`` in a bag, in time order, with what went wrong if anything.
+    """The driver's pose topics of a bag, raw, in time order (over :class:`BagSource`).
 
-    Opens MCAP and sqlite3 bags with rosbags. An MCAP file rosbags cannot open because it
-    was cut short (no footer) is read record by record up to the cut instead. ``problem``
-    says what stopped the reading early (None if the bag was read to its end).
+    Refuses a bag that lacks one of ``topics`` or holds it with another type than
+    PoseStamped; ``problem`` says what stopped the reading early (None if the bag was read
+    to its end, e.g. a truncated MCAP read up to the cut).
     """
 
     def __init__(self, bag: Path, topics: set[str]):
-        self.bag, self.topics = bag, topics
+        self.source = BagSource(bag)
+        self.bag, self.topics = Path(bag), topics
         self.total = 0
-        self.problem: str | None = None
-        self._reader = None
-        self._recovered: list | None = None
 
     def __enter__(self) -> 'BagMessages':
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-        try:
-            self._reader = AnyReader([self.bag], default_typestore=get_typestore(
-                Stores.ROS2_JAZZY))
-            self._reader.open()
-        except Exception as error:  # rosbags raises several types for unreadable files
-            self._reader = None
-            mcap = self._mcap_file()
-            if mcap is None:
-                raise ValueError(f'{self.bag}: cannot open as a rosbag2 bag (MCAP or sqlite3): '
-                                 f'{error}') from None
-            from inhand_common.mcap_recovery import RecoveryReport, recover_mcap
-            report = RecoveryReport()
-            try:
-                messages = list(recover_mcap(mcap, report))
-            except ValueError as not_mcap:
-                raise ValueError(f'{self.bag}: cannot open as a rosbag2 bag (MCAP or sqlite3): '
-                                 f'{error} ({not_mcap})') from None
-            self._check([(m.topic, m.msgtype) for m in messages])
-            self._recovered = [(m.topic.lstrip('/'), m.log_time, m.data) for m in messages
-                               if m.topic.lstrip('/') in self.topics]
-            self.total = len(self._recovered)
-            self.problem = (f'{str(error).rstrip(".")}; read the file record by record up to byte '
-                            f'{report.bytes_read} of {report.file_size} '
-                            f'({report.stopped_because or "end of data"})')
-            return self
-        connections = [c for c in self._reader.connections if c.topic.lstrip('/') in self.topics]
-        self._check([(c.topic, c.msgtype) for c in self._reader.connections])
-        self._connections = connections
-        self.total = sum(c.msgcount for c in connections)
+        self.source.__enter__()
+        available = self.source.topics
+        missing = sorted(self.topics - set(available))
+        if missing:
+            self.source.__exit__(None, None, None)
+            raise ValueError(f'{self.bag}: no {", ".join(missing)} in this bag; it has '
+                             f'{sorted(available) or "no topics"}')
+        for topic in sorted(self.topics):
+            if available[topic].msgtype != 'geometry_msgs/msg/PoseStamped':
+                self.source.__exit__(None, None, None)
+                raise ValueError(f'{self.bag}: {topic} is {available[topic].msgtype}, '
+                                 'expected geometry_msgs/msg/PoseStamped')
+        self.total = sum(available[topic].count for topic in self.topics)
         return self
 
-    def _mcap_file(self) -> Path | None:
-        if self.bag.suffix == '.mcap' and self.bag.is_file():
-            return self.bag
-        found = sorted(self.bag.glob('*.mcap')) if self.bag.is_dir() else []
-        return found[0] if len(found) == 1 else None
+    @property
+    def problem(self) -> str | None:
+        return self.source.problem
 
-    def _check(self, available: list[tuple[str, str]]) -> None:
-        types = {}
-        for topic, msgtype in available:
-            types.setdefault(topic.lstrip('/'), msgtype)
-        missing = sorted(self.topics - set(types))
-        if missing:
-            raise ValueError(f'{self.bag}: no {", ".join(missing)} in this bag; it has '
-                             f'{sorted(types) or "no topics"}')
-        for topic in sorted(self.topics):
-            if types[topic] != 'geometry_msgs/msg/PoseStamped':
-                raise ValueError(f'{self.bag}: {topic} is {types[topic]}, '
-                                 'expected geometry_msgs/msg/PoseStamped')
+    @property
+    def start_ns(self) -> int:
+        return self.source.start_ns
+
+    @property
+    def end_ns(self) -> int:
+        return self.source.end_ns
 
     def __iter__(self):
-        if self._recovered is not None:
-            yield from self._recovered
-            return
-        try:
-            for connection, timestamp, raw in self._reader.messages(
-                    connections=self._connections):
-                yield connection.topic.lstrip('/'), timestamp, raw
-        except Exception as error:  # a damaged bag: keep what was read
-            self.problem = f'{type(error).__name__}: {error}'
+        return self.source.messages(self.topics)
 
     def __exit__(self, *exc) -> None:
-        if self._reader is not None:
-            self._reader.close()
+        self.source.__exit__(*exc)
 
 
 class BagRegistration:
@@ -198,7 +135,9 @@ class BagRegistration:
         report = self.report
         chunk: list[tuple[str, bytes]] = []
         with BagMessages(self.bag, wanted) as source:
-            bar = Progress(source.total) if self.progress else None
+            bar = Progress('build_map', source.start_ns, source.end_ns) if self.progress \
+                else None
+            started = time.monotonic()
             for topic, timestamp, raw in source:
                 chunk.append((topic, raw))
                 report['bag_start'] = report['bag_start'] or timestamp
@@ -208,10 +147,12 @@ class BagRegistration:
                     yield from self._process(chunk)
                     chunk = []
                     if bar:
-                        bar.update(report['messages'])
+                        bar.update(timestamp, report['messages'], source.start_ns,
+                                   time.monotonic() - started)
             yield from self._process(chunk)
             if bar:
-                bar.update(report['messages'])
+                bar.update(report['bag_end'] or source.start_ns, report['messages'],
+                           source.start_ns, time.monotonic() - started, force=True)
                 bar.close()
             report['truncated'] = source.problem
             report['expected_messages'] = source.total

@@ -1,0 +1,198 @@
+"""Open any rosbag2 bag, list its topics, iterate its raw messages; a progress line.
+
+No rclpy here, so bag checks run before the ROS runtime loads; used by ``build_map``,
+``map_metrics`` and the bag tools alike.
+
+``BagSource`` opens MCAP and sqlite3 bags with rosbags (a bag folder, or a bare ``.mcap`` /
+``.db3`` file). An MCAP file that rosbags cannot open because it was cut short (a recorder
+that died, a copy that stopped) is read record by record up to the cut with
+:mod:`inhand_common.mcap_recovery`, and ``problem`` says so.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+__all__ = ['BagError', 'BagSource', 'BagTopic', 'Progress', 'relative_name']
+
+
+class BagError(ValueError):
+    """A bag that cannot be used, with a message for the user."""
+
+
+def relative_name(topic: str) -> str:
+    """The topic without its leading '/': relative, so namespaces and remapping apply."""
+    return topic.lstrip('/')
+
+
+@dataclass
+class BagTopic:
+    """One topic of a bag. ``qos`` is the recorded offered QoS (rosbags ``Qos``), maybe []."""
+
+    name: str  # relative
+    msgtype: str
+    count: int = 0
+    qos: list = field(default_factory=list)
+    connections: list = field(default_factory=list)
+
+
+class BagSource:
+    """The topics and raw messages of a bag, in time order; ``problem`` if it is damaged.
+
+    Use as a context manager. ``messages()`` can be called again (``--loop``).
+    """
+
+    def __init__(self, bag: Path):
+        self.bag = Path(bag)
+        self.topics: dict[str, BagTopic] = {}
+        self.start_ns = 0
+        self.end_ns = 0
+        self.problem: str | None = None
+        self._reader = None
+        self._recovered: list[tuple[str, int, bytes]] | None = None
+
+    def __enter__(self) -> 'BagSource':
+        if not self.bag.exists():
+            raise BagError(f'{self.bag}: no such bag')
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+        try:
+            self._reader = AnyReader([self.bag], default_typestore=get_typestore(
+                Stores.ROS2_JAZZY))
+            self._reader.open()
+        except Exception as error:  # rosbags raises several types for unreadable files
+            self._reader = None
+            self._recover(error)
+            return self
+        for connection in self._reader.connections:
+            name = relative_name(connection.topic)
+            topic = self.topics.setdefault(name, BagTopic(name, connection.msgtype))
+            if connection.msgtype != topic.msgtype:
+                raise BagError(f'{self.bag}: topic {connection.topic} has two types, '
+                               f'{topic.msgtype} and {connection.msgtype}')
+            topic.count += connection.msgcount
+            topic.qos.extend(getattr(connection.ext, 'offered_qos_profiles', None) or [])
+            topic.connections.append(connection)
+        if any(t.count for t in self.topics.values()):
+            self.start_ns, self.end_ns = self._reader.start_time, self._reader.end_time
+            # rosbags' end_time is one past the last message
+            self.end_ns = max(self.start_ns, self.end_ns - 1)
+        return self
+
+    def _mcap_file(self) -> Path | None:
+        if self.bag.suffix == '.mcap' and self.bag.is_file():
+            return self.bag
+        found = sorted(self.bag.glob('*.mcap')) if self.bag.is_dir() else []
+        return found[0] if len(found) == 1 else None
+
+    def _recover(self, error: Exception) -> None:
+        refused = f'{self.bag}: cannot open as a rosbag2 bag (MCAP or sqlite3): {error}'
+        mcap = self._mcap_file()
+        if mcap is None:
+            raise BagError(refused) from None
+        from inhand_common.mcap_recovery import RecoveryReport, recover_mcap
+        report = RecoveryReport()
+        try:
+            messages = list(recover_mcap(mcap, report))
+        except ValueError as not_mcap:
+            raise BagError(f'{refused} ({not_mcap})') from None
+        if not messages and not report.complete:
+            raise BagError(f'{refused} (no whole message in its first {report.bytes_read} '
+                           'bytes)') from None
+        messages.sort(key=lambda m: m.log_time)  # file order is time order for rosbag2
+        self._recovered = []
+        for m in messages:
+            name = relative_name(m.topic)
+            topic = self.topics.setdefault(name, BagTopic(name, m.msgtype))
+            topic.count += 1
+            self._recovered.append((name, m.log_time, m.data))
+        if messages:
+            self.start_ns, self.end_ns = messages[0].log_time, messages[-1].log_time
+        if not report.complete:
+            self.problem = (f'{str(error).rstrip(".")}; read the file record by record up to '
+                            f'byte {report.bytes_read} of {report.file_size} '
+                            f'({report.stopped_because or "end of data"}): '
+                            f'{len(messages)} messages are readable, recorded QoS is not')
+
+    @property
+    def duration(self) -> float:
+        return (self.end_ns - self.start_ns) * 1e-9
+
+    def messages(self, topics: set[str], start_ns: int | None = None
+                 ) -> Iterator[tuple[str, int, bytes]]:
+        """(relative topic, log time ns, raw CDR bytes) of ``topics`` in time order."""
+        if self._recovered is not None:
+            for item in self._recovered:
+                if item[0] in topics and (start_ns is None or item[1] >= start_ns):
+                    yield item
+            return
+        connections = [c for name in sorted(topics) for c in self.topics[name].connections]
+        if not connections:
+            return
+        try:
+            for connection, timestamp, raw in self._reader.messages(connections=connections,
+                                                                    start=start_ns):
+                yield relative_name(connection.topic), timestamp, raw
+        except Exception as error:  # a damaged bag: keep what was read
+            self.problem = f'{type(error).__name__}: {error}'
+
+    def __exit__(self, *exc) -> None:
+        if self._reader is not None:
+            self._reader.close()
+            self._reader = None
+
+
+class Progress:
+    """A progress line on stderr: redrawn in place on a terminal, every 10% otherwise.
+
+    Shows the time into the bag, the percentage, messages and the achieved rate.
+    """
+
+    def __init__(self, prog: str, start_ns: int, end_ns: int, stream=None, prefix: str = ''):
+        self.prog, self.prefix = prog, prefix
+        self.start_ns, self.span = start_ns, max(end_ns - start_ns, 1)
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = self.stream.isatty()
+        self._last_decile = -1
+        self._last_draw = 0.0
+        self._drawn = False
+        self._last_messages = -1
+
+    def update(self, bag_ns: int, messages: int, first_ns: int, wall: float,
+               force: bool = False, pass_messages: int | None = None) -> None:
+        """At bag time ``bag_ns``, ``messages`` published in all; this pass started at bag
+        time ``first_ns`` ``wall`` seconds ago and has published ``pass_messages``."""
+        fraction = min(max((bag_ns - self.start_ns) / self.span, 0.0), 1.0)
+        # the last decile is left to the final forced line (messages sharing the last stamp)
+        decile = min(int(fraction * 10 + 1e-9), 9)
+        now = time.monotonic()
+        if self.tty:
+            if not force and now - self._last_draw < 0.1:
+                return
+        elif (decile <= self._last_decile and not force) or messages == self._last_messages:
+            return
+        self._last_draw, self._last_decile, self._last_messages = now, decile, messages
+        played = (bag_ns - first_ns) * 1e-9
+        measured = wall >= 0.05
+        factor = f'{played / wall:6.2f}x' if measured else '     - '
+        done = messages if pass_messages is None else pass_messages
+        rate = f'{done / wall:>9,.0f}' if measured else '        -'
+        line = (f'{self.prog}: {self.prefix}{(bag_ns - self.start_ns) * 1e-9:8.2f} / '
+                f'{self.span * 1e-9:.2f} s [{"#" * int(fraction * 20):<20}] {fraction:6.1%} '
+                f'{messages:>9,} msgs {rate} msg/s {factor} real time')
+        if self.tty:
+            self.stream.write('\r' + line)
+            self._drawn = True
+        else:
+            self.stream.write(line + '\n')
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.tty and self._drawn:
+            self.stream.write('\n')
+            self.stream.flush()
+            self._drawn = False
