@@ -198,10 +198,9 @@ class PosePublisher:
 
 
 def call_trigger(service: str, timeout: float = 20.0):
-    """Call a std_srvs/Trigger service once; returns (success, message) as a response."""
+    """Call a std_srvs/Trigger service once; returns (success, message) as a response
+    (a service that never answers comes back unsuccessful, with the reason)."""
     success, message = launching_call_trigger(service, timeout)
-    if 'did not' in message and not success:
-        raise AssertionError(message)
     return SimpleNamespace(success=success, message=message)
 
 

@@ -1,10 +1,10 @@
-"""Conversions between float seconds (what the plain modules use) and ROS time messages."""
+"""Float seconds (what the plain modules use) to ROS time messages."""
 
 from __future__ import annotations
 
 from builtin_interfaces.msg import Time
 
-__all__ = ['stamp_from_seconds', 'seconds_from_stamp']
+__all__ = ['stamp_from_seconds']
 
 
 def stamp_from_seconds(seconds: float) -> Time:
@@ -12,6 +12,3 @@ def stamp_from_seconds(seconds: float) -> Time:
     nanoseconds = int(round(seconds * 1e9))
     return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
-
-def seconds_from_stamp(stamp: Time) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9

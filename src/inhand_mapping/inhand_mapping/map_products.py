@@ -21,12 +21,14 @@ class MapProducts:
     def __init__(self, grid: OccupancyGrid, threshold: float):
         self.grid = grid
         self.threshold = threshold
-        self._clouds = MapClouds(grid)
+        self._clouds: MapClouds | None = None  # two grid-sized buffers: made on first use
 
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
         """(touched cells, occupied cells) in the clouds.MAP_CELL_DTYPE layout: views of
         buffers reused by the next call. "Occupied" compares the float64 probability with
         the threshold, as OccupancyGrid.cells (the saved PLY) does."""
+        if self._clouds is None:
+            self._clouds = MapClouds(self.grid)
         return self._clouds(self.threshold)
 
     def object_frame(self) -> ObjectFrame | None:

@@ -55,7 +55,6 @@ class RegistrationNode(Node):
         self._object_frame = self.create_publisher(PoseStamped, 'registration/object_frame',
                                                    LATCHED_QOS)
         self._frame_sent = False
-        self._last_stamp = None
         self.create_timer(self.values['publish_period'], self._publish)
         if self.values['mode'] == 'static':
             self._send_object_frame(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))

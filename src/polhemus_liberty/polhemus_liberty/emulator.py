@@ -57,7 +57,7 @@ class LibertyEmulator:
         self.link = PtyLink(link_path)
         self.rate_override = rate_override
         self.stats = EmulatorStats()
-        self.sent_frames: deque = deque(maxlen=history or None) if history else deque(maxlen=0)
+        self.sent_frames: deque = deque(maxlen=history)
         self._rng = random.Random(seed)
         self._lock = threading.Lock()
         self._garbage = 0
