@@ -23,6 +23,13 @@ def sphere_surface_points(count: int, radius: float, seed: int = 0) -> np.ndarra
     return radius * v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
+def touched_spot(frame: int, finger: int, spots: int, rate: float = 240.0,
+                 dwell: float = 0.2) -> int:
+    """Which spot ``finger`` touches in tracker frame ``frame`` of a sphere session."""
+    per_spot = max(1, int(round(dwell * rate)))
+    return ((frame // per_spot) * 7 + finger * 53) % spots
+
+
 def object_motion(t: float, moving: bool):
     """Object sensor pose: 25 cm in front of the source; swaying and drifting if moving."""
     if not moving:
@@ -34,11 +41,14 @@ def object_motion(t: float, moving: bool):
 
 def sphere_session(seconds: float = 4.0, rate: float = 240.0, radius: float = 0.04,
                    centre_in_object=(0.0, 0.01, -0.02), surface_points: int = 150,
-                   moving: bool = True, start: float = 1000.0, seed: int = 0):
+                   moving: bool = True, start: float = 1000.0, seed: int = 0,
+                   dwell: float = 0.2):
     """Frames of fingertips visiting ``surface_points`` spots of a sphere fixed to the object.
 
-    Each spot is visited again and again (contour following over a small object), so
-    their cells collect many hits. Returns (frames, sphere centre in the object frame).
+    Each fingertip rests ``dwell`` seconds on a spot, then jumps to another; the fingers
+    take the spots in different orders, so spots are touched by several fingers and again
+    later (the map needs independent touches: see occupancy.py). Returns (frames, sphere
+    centre in the object frame).
     """
     spots = sphere_surface_points(surface_points, radius, seed) + np.asarray(centre_in_object)
     frames = []
@@ -47,7 +57,7 @@ def sphere_session(seconds: float = 4.0, rate: float = 240.0, radius: float = 0.
         obj_p, obj_q = object_motion(t - start, moving)
         frame = {'object': (obj_p, obj_q)}
         for f, name in enumerate(FINGERS):
-            local = spots[(k * 7 + f * 53) % len(spots)]
+            local = spots[touched_spot(k, f, len(spots), rate, dwell)]
             frame[name] = (obj_p + rotate_vectors(obj_q, local), np.array([0.0, 0.0, 0.0, 1.0]))
         frames.append((t, frame))
     return frames, np.asarray(centre_in_object, dtype=float)

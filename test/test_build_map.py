@@ -23,7 +23,7 @@ def build_map(*args, timeout=120):
 
 @pytest.fixture(scope='module')
 def moving_bag(tmp_path_factory):
-    frames, centre = sphere_session(seconds=6.0, surface_points=100, moving=True)
+    frames, centre = sphere_session(seconds=6.0, surface_points=30, moving=True)
     return write_pose_bag(tmp_path_factory.mktemp('bags') / 'moving', frames), centre, frames
 
 
@@ -35,7 +35,7 @@ def test_tracked_map_lies_on_the_sphere(moving_bag, tmp_path):
     assert 'x real time' in result.stdout
     cells = read_ply(tmp_path / 'm.ply')
     xyz = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(float)
-    assert len(xyz) >= 40
+    assert len(xyz) >= 20
     assert np.abs(np.linalg.norm(xyz - centre, axis=1) - 0.04).max() <= 0.005 * math.sqrt(3) / 2 + 1e-6
     grid, metadata = load_npz(tmp_path / 'm.npz')
     assert metadata['extra']['occupied_threshold'] == 0.8
@@ -57,7 +57,7 @@ def test_without_registration_the_moving_object_smears(moving_bag, tmp_path):
     assert tracked.returncode == 0 and static.returncode == 0, static.stderr
     touched = {name: int(load_npz(tmp_path / f'{name}.npz')[0].touched_mask().sum())
                for name in ('t', 's')}
-    assert touched['s'] > 5 * touched['t']
+    assert touched['s'] > 3 * touched['t']
 
 
 def test_sqlite3_bag_gives_the_same_map_as_mcap(tmp_path):

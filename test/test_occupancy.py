@@ -3,9 +3,11 @@
 Expected values are worked out here by hand (math.exp / math.log on the paper's formulas)
 or by a plain-Python per-point, per-neighbour loop, never by calling the code under test.
 
-Model under test (occupancy.py, README): l += log(L / c) with L = exp(-d^2 / (2 sigma^2))
-at the cell centre, c = P(Z|not O) = 0.45, prior 0.5 (l = 0), clamp to [0.12, 0.97] after
-each batch; neighbourhood 1 (containing cell) or 27 (also the 26 neighbours).
+Model under test (occupancy.py, README): l += w log(L / c) with L = exp(-d^2 / (2 sigma^2)),
+d the distance to the cell (default; 0 inside it) or to its centre (the paper, PAPER
+below), c = P(Z|not O) = 0.45, prior 0.5 (l = 0), clamp to [0.12, 0.97] after every update;
+neighbourhood 1 (containing cell) or 27 (also the 26 neighbours). ``w`` is the sample's
+dwell weight (dwell.py), and one finger's visit of a cell gives at most w = 1 in total.
 
 """
 
@@ -26,16 +28,19 @@ from sensor_msgs.msg import PointCloud2, PointField
 
 from inhand_common.point_cloud import from_point_cloud2, pack_rgb, to_point_cloud2
 from inhand_mapping import map_io
+from inhand_mapping.dwell import DwellWeights
 from inhand_mapping.entropy import cell_entropy, entropy_weights, eq10_entropy, map_entropy
 from inhand_mapping.object_frame import object_frame
 from inhand_mapping.occupancy import (GridSpec, IntegrationCounts, OccupancyGrid,
-                                      SensorModel, WindowedIntegrator, logit, probability)
+                                      SensorModel, logit, probability)
 
 RES = 0.005      # default cell size (m)
 SIGMA = 0.002    # default sensor sigma (m)
 C = 0.45         # default P(Z | not O)
 HALF = 0.175     # half of the default 0.35 m workspace, centred at the origin
 P_MIN, P_MAX = 0.12, 0.97
+# The paper read literally: eq. 3 at the cell centre, every sample a full measurement.
+PAPER = SensorModel(distance_to='centre', evidence_rate=0.0, visit_gap=0.0)
 
 
 # ============================================================================ hand helpers
@@ -87,7 +92,7 @@ def test_one_hit_at_a_cell_centre_gives_one_over_one_plus_c():
 def test_one_hit_at_a_cell_corner_follows_eq4(sign):
     eps = 1e-9  # just inside the cell, so which cell holds it is not a rounding question
     offset = RES / 2 - eps
-    grid = OccupancyGrid()
+    grid = OccupancyGrid(model=PAPER)
     grid.integrate((centre_of(40, 5, 61) + sign * offset)[None])
     d2 = 3 * offset ** 2
     big_l = math.exp(-d2 / (2 * SIGMA ** 2))
@@ -120,7 +125,8 @@ def test_repeated_hits_at_the_centre_pass_the_thresholds(one_batch):
     assert round(expected[2], 4) == 0.8316 and round(expected[3], 4) == 0.9165
 
 
-def test_a_single_stray_point_stays_below_0_7_wherever_it_falls_in_its_cell():
+@pytest.mark.parametrize('distance_to', ['cell', 'centre'])
+def test_a_single_stray_point_stays_below_0_7_wherever_it_falls_in_its_cell(distance_to):
     rng = np.random.default_rng(7)
     cells = rng.choice(70 ** 3, size=600, replace=False)
     ijk = np.stack(np.unravel_index(cells, (70, 70, 70)), axis=1)
@@ -129,13 +135,14 @@ def test_a_single_stray_point_stays_below_0_7_wherever_it_falls_in_its_cell():
     offsets[1] = RES / 2 - 1e-9                        # at a corner
     offsets[2] = [RES / 2 - 1e-9, 0.0, 0.0]            # at a face
     points = np.array([centre_of(*c) for c in ijk]) + offsets
-    grid = OccupancyGrid()
+    grid = OccupancyGrid(model=SensorModel(distance_to=distance_to))
     grid.integrate(points)
     p = grid.probabilities()[tuple(ijk.T)]
     assert p.max() < 0.7
     assert p[0] == pytest.approx(1 / 1.45, abs=1e-12)
     for k in range(600):
-        d2 = float(offsets[k] @ offsets[k])
+        # inside its own cell: distance 0 to the cell, |offset| to the centre
+        d2 = float(offsets[k] @ offsets[k]) if distance_to == 'centre' else 0.0
         big_l = math.exp(-d2 / (2 * SIGMA ** 2))
         assert p[k] == pytest.approx(big_l / (big_l + C), abs=1e-12), k
     assert grid.touched_mask().sum() == 600
@@ -154,34 +161,45 @@ def test_clamped_at_0_97_after_many_hits():
 def test_clamped_at_0_12_after_many_far_from_centre_hits():
     corner = centre_of(68, 0, 9) + (RES / 2 - 1e-9)
     for batches in ([15], [1] * 15):
-        grid = OccupancyGrid()
+        grid = OccupancyGrid(model=PAPER)
         for n in batches:
             grid.integrate(np.repeat(corner[None], n, axis=0))
         assert grid.log_odds[68, 0, 9] == pytest.approx(math.log(0.12 / 0.88), abs=1e-12)
         assert grid.probabilities()[68, 0, 9] == pytest.approx(0.12, abs=1e-12)
 
 
-def test_clamping_is_applied_after_each_batch_not_after_each_point():
+def test_clamping_is_applied_after_every_update_whatever_the_batches():
     centre = centre_of(20, 20, 20)
     corner = centre + (RES / 2 - 1e-9)
     l_max = math.log(0.97 / 0.03)
-    up = -math.log(C)                                  # one hit at the centre
     down = log_ratio(3 * (RES / 2 - 1e-9) ** 2)        # one hit at the corner (-1.545)
-    # 10 centre hits clamp to l_max; then a separate corner batch lowers from there
+    # 10 centre hits clamp to l_max; then the corner lowers from there, in one batch or two
+    for split in (True, False):
+        grid = OccupancyGrid(model=PAPER)
+        if split:
+            grid.integrate(np.repeat(centre[None], 10, axis=0))
+            grid.integrate(corner[None])
+        else:
+            grid.integrate(np.vstack([np.repeat(centre[None], 10, axis=0), corner[None]]))
+        assert grid.log_odds[20, 20, 20] == pytest.approx(l_max + down, abs=1e-12)
+        assert grid.probabilities()[20, 20, 20] == pytest.approx(prob(l_max + down), abs=1e-12)
+    # the corner first: it cannot go below the lower clamp, then 10 hits climb back up
+    grid = OccupancyGrid(model=PAPER)
+    grid.integrate(np.vstack([np.repeat(corner[None], 3, axis=0),
+                              np.repeat(centre[None], 2, axis=0)]))
+    assert grid.log_odds[20, 20, 20] == pytest.approx(hand_logit(P_MIN) - 2 * math.log(C),
+                                                      abs=1e-12)
+
+
+def test_a_measurement_anywhere_in_its_cell_supports_it_fully_by_default():
     grid = OccupancyGrid()
-    grid.integrate(np.repeat(centre[None], 10, axis=0))
-    grid.integrate(corner[None])
-    assert grid.log_odds[20, 20, 20] == pytest.approx(l_max + down, abs=1e-12)
-    assert grid.probabilities()[20, 20, 20] == pytest.approx(prob(l_max + down), abs=1e-12)
-    # the same 11 points in one batch: 10 up + 1 down = 6.44 > l_max, clamped once
-    grid = OccupancyGrid()
-    grid.integrate(np.vstack([np.repeat(centre[None], 10, axis=0), corner[None]]))
-    assert 10 * up + down > l_max
-    assert grid.log_odds[20, 20, 20] == pytest.approx(l_max, abs=1e-12)
+    corner = centre_of(40, 5, 61) + (RES / 2 - 1e-9)
+    grid.integrate(np.repeat(corner[None], 2, axis=0))
+    assert grid.probabilities()[40, 5, 61] == pytest.approx(1 / (1 + C * C), abs=1e-12)
 
 
 def test_neighbourhood_27_updates_each_neighbour_with_eq3_at_its_own_centre():
-    grid = OccupancyGrid(model=SensorModel(neighbourhood=27))
+    grid = OccupancyGrid(model=SensorModel(neighbourhood=27, distance_to='centre'))
     offset = np.array([0.0023, 0.0022, -0.0024])
     point = centre_of(30, 40, 50) + offset
     grid.integrate(point[None], np.array([2.5]))
@@ -213,6 +231,22 @@ def test_neighbourhood_27_updates_each_neighbour_with_eq3_at_its_own_centre():
     assert untouched_elsewhere(grid, [tuple(t) for t in touched])
 
 
+def test_neighbourhood_27_with_the_distance_to_each_cell():
+    grid = OccupancyGrid(model=SensorModel(neighbourhood=27))
+    offset = np.array([0.0023, -0.0012, 0.0])
+    grid.integrate((centre_of(30, 40, 50) + offset)[None], np.array([1.0]))
+    # own cell: inside, L = 1; (+1, 0, 0): 0.2 mm away; (-1, 0, 0): 4.8 mm; (+1, -1, 0):
+    # 0.2 mm and 1.3 mm; (0, +1, 0): 3.7 mm (L < c: lowered)
+    assert grid.log_odds[30, 40, 50] == pytest.approx(-math.log(C), abs=1e-12)
+    assert grid.log_odds[31, 40, 50] == pytest.approx(log_ratio(0.0002 ** 2), abs=1e-12)
+    assert grid.log_odds[29, 40, 50] == pytest.approx(
+        max(log_ratio(0.0048 ** 2), hand_logit(P_MIN)), abs=1e-12)
+    assert grid.log_odds[31, 39, 50] == pytest.approx(
+        log_ratio(0.0002 ** 2 + 0.0013 ** 2), abs=1e-12)
+    assert grid.log_odds[30, 41, 50] == pytest.approx(log_ratio(0.0037 ** 2), abs=1e-12)
+    assert grid.log_odds[30, 41, 50] < 0 < grid.log_odds[31, 39, 50]
+
+
 @pytest.mark.parametrize('cell, expected', [((0, 0, 0), 8), ((69, 69, 69), 8),
                                             ((0, 0, 33), 12), ((0, 33, 33), 18),
                                             ((69, 33, 69), 12), ((33, 69, 33), 18)])
@@ -232,8 +266,11 @@ def test_neighbourhood_1_touches_only_the_containing_cell():
 
 # =========================================================================== brute-force reference
 
-def reference_log_odds(spec: GridSpec, model: SensorModel, batches):
-    """Eq. 3-4 the slow, obvious way: per point, per neighbour, clamp after each batch.
+def reference_log_odds(spec: GridSpec, model: SensorModel, batches, times=None,
+                       fingers=None, weights=None):
+    """Eq. 3-4 the slow, obvious way: per point, per neighbour, clamped after each update;
+    with ``times`` (one list per batch), one finger's visit of a cell gives at most 1 in
+    total, each point adding ``weights`` (default 1) until then.
 
     Returns (log-odds as a flat list indexed like the grid, min and max value ever reached
     before clamping, counts as a dict)."""
@@ -246,11 +283,12 @@ def reference_log_odds(spec: GridSpec, model: SensorModel, batches):
     log_odds = [prior] * n ** 3
     lowest, highest = prior, prior
     counts = {'integrated': 0, 'outside': 0, 'invalid': 0}
-    for batch in batches:
-        changed = set()
-        for point in batch:
+    visits = {}   # (finger, cell) -> [last time, evidence given]
+    for b, batch in enumerate(batches):
+        for k, point in enumerate(batch):
             x, y, z = (float(v) for v in point)
-            if not all(math.isfinite(v) for v in (x, y, z)):
+            t = float(times[b][k]) if times is not None else 0.0
+            if not all(math.isfinite(v) for v in (x, y, z, t)):
                 counts['invalid'] += 1
                 continue
             ijk = [math.floor((v - o) / spec.resolution) for v, o in zip((x, y, z), origin)]
@@ -258,23 +296,36 @@ def reference_log_odds(spec: GridSpec, model: SensorModel, batches):
                 counts['outside'] += 1
                 continue
             counts['integrated'] += 1
+            w = float(weights[b][k]) if weights is not None else 1.0
+            finger = int(fingers[b][k]) if fingers is not None else 0
             for dx in range(-reach, reach + 1):
                 for dy in range(-reach, reach + 1):
                     for dz in range(-reach, reach + 1):
                         jx, jy, jz = ijk[0] + dx, ijk[1] + dy, ijk[2] + dz
                         if not (0 <= jx < n and 0 <= jy < n and 0 <= jz < n):
                             continue
-                        mx = origin[0] + (jx + 0.5) * spec.resolution
-                        my = origin[1] + (jy + 0.5) * spec.resolution
-                        mz = origin[2] + (jz + 0.5) * spec.resolution
-                        d2 = (x - mx) ** 2 + (y - my) ** 2 + (z - mz) ** 2
+                        d2 = 0.0
+                        for v, jv, o in zip((x, y, z), (jx, jy, jz), origin):
+                            low, high = o + jv * spec.resolution, o + (jv + 1) * spec.resolution
+                            if model.distance_to == 'centre':
+                                d2 += (v - (low + high) / 2) ** 2
+                            else:
+                                d2 += max(low - v, 0.0, v - high) ** 2
                         likelihood = math.exp(-d2 / (2 * model.sigma ** 2))
                         j = (jx * n + jy) * n + jz
-                        log_odds[j] += math.log(likelihood / model.p_z_given_not_occupied)
-                        changed.add(j)
-        for j in changed:
-            lowest, highest = min(lowest, log_odds[j]), max(highest, log_odds[j])
-            log_odds[j] = min(max(log_odds[j], l_min), l_max)
+                        dw = w
+                        if times is not None:
+                            last, given = visits.get((finger, j), (-math.inf, 0.0))
+                            if abs(t - last) > model.visit_gap:
+                                given = 0.0
+                            dw = min(w, 1.0 - given)
+                            visits[(finger, j)] = (t, given + max(dw, 0.0))
+                            if dw <= 0:
+                                continue
+                        value = log_odds[j] + dw * math.log(
+                            likelihood / model.p_z_given_not_occupied)
+                        lowest, highest = min(lowest, value), max(highest, value)
+                        log_odds[j] = min(max(value, l_min), l_max)
     return log_odds, lowest, highest, counts
 
 
@@ -305,7 +356,8 @@ WIDE = dict(clamp_min=1e-300, clamp_max=1 - 2 ** -52)
 @pytest.mark.parametrize('neighbourhood', [1, 27])
 @pytest.mark.parametrize('clamps', ['wide', 'default'])
 def test_grid_matches_the_brute_force_reference(neighbourhood, clamps):
-    model = SensorModel(neighbourhood=neighbourhood, **(WIDE if clamps == 'wide' else {}))
+    model = SensorModel(neighbourhood=neighbourhood, distance_to='centre',
+                        **(WIDE if clamps == 'wide' else {}))
     batches = random_batches(11 + neighbourhood, SMALL)
     grid = OccupancyGrid(SMALL, model)
     for batch in batches:
@@ -340,6 +392,37 @@ def test_brute_force_with_other_sigma_and_c_and_dense_cells():
     expected, lowest, highest, _ = reference_log_odds(spec, model, [points])
     assert np.max(np.abs(grid.log_odds - np.array(expected).reshape(spec.shape))) < 1e-12
     assert grid.hits.max() > 10
+
+
+@pytest.mark.parametrize('neighbourhood', [1, 27])
+@pytest.mark.parametrize('distance_to', ['cell', 'centre'])
+def test_visits_and_weights_match_the_brute_force_reference(neighbourhood, distance_to):
+    """Three fingers wandering in a small workspace, coming back to cells within and after
+    the visit gap, with times, finger ids and dwell weights given to the kernel."""
+    model = SensorModel(neighbourhood=neighbourhood, distance_to=distance_to, visit_gap=0.5,
+                        evidence_rate=15.0)
+    spec = GridSpec(size=0.03, resolution=0.005, centre=(0.0, 0.0, 0.0))
+    rng = np.random.default_rng(17 + neighbourhood)
+    steps = 900
+    times = np.repeat(np.arange(steps // 3) * 0.02, 3)
+    fingers = np.tile([0, 1, 2], steps // 3)
+    points = np.cumsum(rng.normal(0, 0.0012, (steps, 3)), axis=0) % 0.03 - 0.015
+    grid = OccupancyGrid(spec, model)
+    batches = np.array_split(np.arange(steps), 4)
+    weights = []
+    for part in batches:
+        before = grid._dwell.weights(points[part], times[part], fingers[part])
+        weights.append(before)
+    grid = OccupancyGrid(spec, model)
+    for part in batches:
+        grid.integrate(points[part], times[part], fingers[part])
+    expected, _, _, counts = reference_log_odds(
+        spec, model, [points[p] for p in batches], [times[p] for p in batches],
+        [fingers[p] for p in batches], weights)
+    assert np.max(np.abs(grid.log_odds - np.array(expected).reshape(spec.shape))) < 1e-12
+    assert counts['integrated'] == steps
+    w = np.concatenate(weights)
+    assert 0.05 < w.min() and w.max() <= 1.0 and (w < 1).mean() > 0.2   # weights in play
 
 
 # ============================================================================ bookkeeping
@@ -434,7 +517,8 @@ def test_reset_clears_everything_and_the_grid_starts_afresh():
 def test_cells_lists_touched_cells_and_thresholds():
     grid = OccupancyGrid()
     a, b = centre_of(1, 2, 3), centre_of(4, 5, 6)
-    grid.integrate(np.array([a, a, b]), np.array([0.5, 0.7, 0.9]))
+    # two fingers at a (two visits), one at b
+    grid.integrate(np.array([a, a, b]), np.array([0.5, 0.7, 0.9]), np.array([0, 1, 0]))
     centres, p, hits, first = grid.cells()
     order = np.argsort(hits)
     assert np.allclose(centres[order], [b, a], atol=1e-15)
@@ -445,7 +529,7 @@ def test_cells_lists_touched_cells_and_thresholds():
     assert logit(0.5) == 0.0 and probability(0.0) == 0.5
 
 
-# ============================================================================ windows
+# ============================================================================ streams
 
 def fingertip_stream(seed, count=6000, rate=240.0):
     """Three fingertips per tracker frame (same stamp), monotone sensor time, a few bad
@@ -453,6 +537,7 @@ def fingertip_stream(seed, count=6000, rate=240.0):
     rng = np.random.default_rng(seed)
     frames = count // 3
     times = np.repeat(np.arange(frames) / rate + 12.3, 3)
+    fingers = np.tile([0, 1, 2], frames)
     walk = np.cumsum(rng.normal(0, 0.0008, size=(frames * 3, 3)), axis=0) * 0.3
     points = np.tile(np.array([[0.02, 0.0, 0.0], [-0.02, 0.01, 0.0], [0.0, -0.02, 0.01]]),
                      (frames, 1)) + walk + rng.normal(0, 0.0015, size=(frames * 3, 3))
@@ -460,19 +545,14 @@ def fingertip_stream(seed, count=6000, rate=240.0):
     points[chosen[:30]] += 0.3             # outside
     points[chosen[30:35], 1] = np.nan      # bad positions
     times[chosen[35:]] = np.nan            # bad stamps
-    return points, times
+    return points, times, fingers
 
 
-def windowed_grid(points, times, cuts, window=0.1, model=SensorModel()):
+def streamed_grid(points, times, fingers, cuts, model=SensorModel()):
     grid = OccupancyGrid(GridSpec(0.1, 0.005), model)
-    integrator = WindowedIntegrator(grid, window=window)
     bounds = [0, *sorted(cuts), len(points)]
-    done = 0
     for start, end in zip(bounds[:-1], bounds[1:]):
-        done += integrator.add(points[start:end], times[start:end])
-    done += integrator.flush()
-    assert integrator.pending == 0
-    assert done == len(points)
+        grid.integrate(points[start:end], times[start:end], fingers[start:end])
     return grid
 
 
@@ -483,15 +563,14 @@ def same_grid(a, b):
 
 
 @pytest.mark.parametrize('neighbourhood', [1, 27])
-def test_windowed_integration_does_not_depend_on_message_batching(neighbourhood):
-    model = SensorModel(neighbourhood=neighbourhood)
-    points, times = fingertip_stream(21)
+def test_the_map_does_not_depend_on_message_batching(neighbourhood):
+    # a short visit gap, so that the fingers come back to cells and visits carry over cuts
+    model = SensorModel(neighbourhood=neighbourhood, visit_gap=0.25)
+    points, times, fingers = fingertip_stream(21)
     n = len(points)
-    reference = windowed_grid(points, times, [], model=model)
+    reference = streamed_grid(points, times, fingers, [], model=model)
     assert reference.counts.invalid == 9 and reference.counts.outside == 30
-    clamped = np.isclose(reference.log_odds, hand_logit(P_MAX), rtol=0, atol=1e-12) | \
-        np.isclose(reference.log_odds, hand_logit(P_MIN), rtol=0, atol=1e-12)
-    assert clamped.sum() > 20  # clamping is in play, so batching could make a difference
+    assert np.count_nonzero(np.abs(reference.log_odds) > 1.0) > 10   # evidence in play
     rng = np.random.default_rng(4)
     batchings = {
         'one point per message': list(range(1, n)),
@@ -500,63 +579,111 @@ def test_windowed_integration_does_not_depend_on_message_batching(neighbourhood)
         'few random splits': sorted(rng.choice(np.arange(1, n), 7, replace=False)),
     }
     for name, cuts in batchings.items():
-        assert same_grid(windowed_grid(points, times, cuts, model=model), reference), name
-    # and the windows are what they say: one integrate() per 0.1 s of sensor time
-    direct = OccupancyGrid(GridSpec(0.1, 0.005), model)
-    bad = ~np.isfinite(times)
-    direct.integrate(points[bad], times[bad])
-    ids = np.floor(times[~bad] / 0.1)
-    for window in np.unique(ids):
-        direct.integrate(points[~bad][ids == window], times[~bad][ids == window])
-    assert same_grid(direct, reference)
-    # while one batch of everything is a different map (clamping once instead of per window)
-    whole = OccupancyGrid(GridSpec(0.1, 0.005), model)
-    whole.integrate(points, times)
-    if neighbourhood == 1:
-        assert not np.array_equal(whole.log_odds, reference.log_odds)
+        assert same_grid(streamed_grid(points, times, fingers, cuts, model=model),
+                         reference), name
 
 
-def test_windowed_integrator_holds_the_newest_window_until_it_is_complete():
+# ============================================================================ dwell, visits
+
+def test_dwell_weights_by_hand():
+    period, cell = 1 / 15, 0.005
+    dwell = DwellWeights(period, cell)
+    # 15 Hz, sliding at 3 cm/s (2 mm per sample, under a cell per period): all 1
+    t = np.arange(10) * period
+    slow = np.outer(0.03 * t, [1.0, 0.0, 0.0])
+    assert np.allclose(dwell.weights(slow, t, np.zeros(10, int)), 1.0)
+    # 240 Hz, the same slide (another finger): 1/16 each, the first one (no previous) 1
+    t2 = np.arange(64) / 240.0
+    w = dwell.weights(np.outer(0.03 * t2, [0.0, 1.0, 0.0]), t2, np.ones(64, int))
+    assert w[0] == 1.0 and np.allclose(w[1:], 1 / 16)
+    # 15 Hz at 0.3 m/s: 2 cm per period, a cell crossed in 1/60 s: weight 1/4 once the
+    # speed is known (from the second sample on); the first has no speed yet
+    fast = DwellWeights(period, cell)
+    w = fast.weights(np.outer(0.3 * t, [0.0, 0.0, 1.0]), t, np.zeros(10, int))
+    assert w[0] == 1.0 and np.allclose(w[1:], 0.25)
+    # a gap of more than two periods: the speed is unknown again; dt is capped at a period
+    t3 = np.array([10.0, 10.0 + period])
+    w = fast.weights(np.array([[0, 0, 1.0], [0, 0, 1.02]]), t3, np.zeros(2, int))
+    assert w[0] == 1.0 and w[1] == pytest.approx(0.25)
+    # time going back by more than a period (a looped bag): the finger starts afresh
+    w = fast.weights(np.array([[0, 0, 0.5]]), np.array([1.0]), np.zeros(1, int))
+    assert w[0] == 1.0
+    with pytest.raises(ValueError):
+        DwellWeights(0.0, cell)
+
+
+def test_dwell_weights_do_not_depend_on_batching():
+    rng = np.random.default_rng(3)
+    points, times, fingers = fingertip_stream(8, count=1500)
+    whole = DwellWeights(1 / 15, 0.005).weights(points, times, fingers)
+    cut = DwellWeights(1 / 15, 0.005)
+    bounds = [0, *sorted(rng.choice(np.arange(1, 1500), 40, replace=False)), 1500]
+    parts = [cut.weights(points[a:b], times[a:b], fingers[a:b])
+             for a, b in zip(bounds[:-1], bounds[1:])]
+    assert np.array_equal(np.concatenate(parts), whole)
+    assert 0 < whole.min() and whole.max() == 1.0 and len(np.unique(whole)) > 20
+
+
+def test_one_finger_resting_on_a_spot_is_one_touch_at_any_rate():
+    """A fingertip held still in a cell for 2 s, sampled at 15 and at 240 Hz: one visit,
+    one measurement (0.69); the same spot touched again after the visit gap: two (0.83)."""
+    cell = centre_of(10, 10, 10)
+    for rate in (15.0, 240.0):
+        grid = OccupancyGrid()
+        t = np.arange(0.0, 2.0, 1.0 / rate)
+        grid.integrate(np.repeat(cell[None], len(t), axis=0), t, np.zeros(len(t), int))
+        assert grid.probabilities()[10, 10, 10] == pytest.approx(1 / (1 + C), abs=1e-12), rate
+        assert grid.hits[10, 10, 10] == len(t)
+        later = t + 2.0 + 3.5        # 3.5 s after the last sample: a new visit
+        grid.integrate(np.repeat(cell[None], len(t), axis=0), later, np.zeros(len(t), int))
+        assert grid.probabilities()[10, 10, 10] == pytest.approx(1 / (1 + C * C), abs=1e-12)
+
+
+def test_repeated_lifts_at_one_place_are_one_visit_and_another_finger_is_another():
+    cell = centre_of(20, 30, 40)
+    above = cell + np.array([0.0, 0.0, 0.02])
+    # the fingertip touches the cell, lifts 2 cm and comes back
+    # (0.2 s on the spot, then 0.8 s up and down), three times in 3 s, at 15 Hz
+    times = np.arange(0.0, 3.0, 1.0 / 15.0)
+    phase = np.clip(((times % 1.0) - 0.2) / 0.8, 0.0, 1.0)
+    path = cell + np.outer(np.sin(np.pi * phase), above - cell)
     grid = OccupancyGrid()
-    integrator = WindowedIntegrator(grid, window=0.1)
-    p = centre_of(3, 3, 3)[None]
-    assert integrator.flush() == 0
-    assert integrator.add(np.repeat(p, 4, axis=0), [0.01, 0.02, 0.03, 0.05]) == 0
-    assert integrator.pending == 4 and grid.hits.sum() == 0
-    assert integrator.add(np.repeat(p, 2, axis=0), [0.06, 0.09]) == 0
-    assert integrator.pending == 6
-    # windows 0 and 1 are complete once a point of window 3 arrives
-    assert integrator.add(np.repeat(p, 3, axis=0), [0.11, 0.12, 0.35]) == 8
-    assert integrator.pending == 1 and grid.hits[3, 3, 3] == 8
-    assert integrator.add(np.empty((0, 3)), []) == 0 and integrator.pending == 1
-    assert integrator.flush() == 1
-    assert integrator.pending == 0 and grid.hits[3, 3, 3] == 9
-    assert grid.first_touch[3, 3, 3] == 0.01
-    # NaN stamps are rejected at once and counted
-    assert integrator.add(np.repeat(p, 2, axis=0), [np.nan, 0.5]) == 1
-    assert integrator.pending == 1 and grid.counts.invalid == 1
-    # clear() forgets what is queued (the map is being reset): nothing reaches the grid
-    integrator.clear()
-    assert integrator.pending == 0 and integrator.flush() == 0
-    assert grid.hits[3, 3, 3] == 9 and grid.counts.integrated == 9
+    grid.integrate(path, times, np.zeros(len(times), int))
+    assert grid.hits[20, 30, 40] >= 9
+    assert grid.probabilities()[20, 30, 40] == pytest.approx(1 / (1 + C), abs=1e-12)
+    assert grid.probabilities().max() < 0.7      # nothing passes, in the air or on the spot
+    # the paper's update would have made the spot and the top of the lifts occupied
+    paper = OccupancyGrid(model=SensorModel(evidence_rate=0.0, visit_gap=0.0))
+    paper.integrate(path, times, np.zeros(len(times), int))
+    assert paper.probabilities()[20, 30, 40] > 0.9 and (paper.probabilities() > 0.8).sum() > 1
+    # another finger touching the spot is independent evidence
+    grid.integrate(cell[None], np.array([1.0]), np.array([1]))
+    assert grid.probabilities()[20, 30, 40] == pytest.approx(1 / (1 + C * C), abs=1e-12)
 
 
-def test_a_point_stamped_in_an_integrated_window_is_counted_late():
-    """The batching invariance holds for streams whose stamps do not go back past an
-    integrated window (what the registrar emits); a point that does is counted."""
-    centre = centre_of(3, 3, 3, half=0.05)   # windowed_grid's 0.1 m workspace
-    corner = centre + (RES / 2 - 1e-9)
-    points = np.vstack([np.repeat(centre[None], 10, axis=0), [centre], [corner]])
-    times = np.array([0.01] * 10 + [0.15, 0.06])   # the corner point is late
-    grid = OccupancyGrid(GridSpec(0.1, RES), SensorModel())
-    integrator = WindowedIntegrator(grid, 0.1)
-    integrator.add(points[:10], times[:10])
-    integrator.add(points[10:11], times[10:11])   # opens window 1: window 0 is integrated
-    assert integrator.late_points == 0
-    integrator.add(points[11:], times[11:])
-    assert integrator.late_points == 1
-    integrator.flush()
-    assert grid.counts.integrated == 12
+def test_a_finger_flying_through_counts_for_little_and_sliding_counts_fully():
+    """The same straight path through a row of cells, at 3 cm/s (sliding) and 0.3 m/s (a
+    transit between strokes), sampled at 15 and 240 Hz."""
+    start = centre_of(10, 35, 35)
+    inner = {}
+    for speed in (0.03, 0.3):
+        for rate in (15.0, 240.0):
+            grid = OccupancyGrid()
+            t = np.arange(0.0, 0.15 / speed, 1.0 / rate)
+            path = start + np.outer(speed * t, [1.0, 0.0, 0.0])
+            grid.integrate(path, t, np.zeros(len(t), int))
+            inner[speed, rate] = grid.log_odds[14:36, 35, 35]   # away from the path's ends
+    full = -math.log(C)
+    # sliding: every cell crossed gets one full measurement, at both rates
+    for rate in (15.0, 240.0):
+        assert inner[0.03, rate] == pytest.approx(np.full(22, full), rel=1e-9), rate
+    # flying: 4 cells per 1/15 s, so a cell gets about a quarter of a measurement: at
+    # 15 Hz every fourth cell gets one sample worth 1/4 (the others none), at 240 Hz every
+    # cell gets 3-5 samples worth 1/16 each
+    assert inner[0.3, 15.0].max() == pytest.approx(0.25 * full, rel=1e-9)
+    assert np.count_nonzero(inner[0.3, 15.0]) in (5, 6)
+    assert inner[0.3, 240.0].max() <= 5 / 16 * full * (1 + 1e-9)
+    assert inner[0.3, 240.0].mean() == pytest.approx(0.25 * full, rel=0.1)
 
 
 # ============================================================================ parameters
@@ -583,7 +710,8 @@ def test_sensor_model_refuses_bad_values():
            dict(clamp_min=0.5), dict(clamp_min=0.6), dict(clamp_max=0.5), dict(clamp_max=1.0),
            dict(clamp_min=0.0), dict(prior=0.97), dict(p_z_given_not_occupied=0.0),
            dict(p_z_given_not_occupied=1.0), dict(p_z_given_not_occupied=1.2),
-           dict(p_z_given_not_occupied=-0.1), dict(sigma=0.0), dict(sigma=-0.002)]
+           dict(p_z_given_not_occupied=-0.1), dict(sigma=0.0), dict(sigma=-0.002),
+           dict(distance_to='corner'), dict(evidence_rate=-1.0), dict(visit_gap=-0.1)]
     for kwargs in bad:
         with pytest.raises(ValueError):
             SensorModel(**kwargs)
@@ -633,7 +761,10 @@ def test_principal_axes_of_an_elongated_ellipsoid_follow_its_axes():
     assert np.linalg.det(axes) == pytest.approx(1.0)
     extents = frame.principal_extents
     assert extents[0] > extents[1] > extents[2] > 0
-    assert extents[0] == pytest.approx(0.08 / math.sqrt(3), rel=0.1)
+    # the spread of the cells the points fall in (the map weighs cells, not points)
+    cells = np.unique(np.floor(points / RES), axis=0)
+    along = ((cells + 0.5) * RES) @ rotation[:, 0]
+    assert extents[0] == pytest.approx(along.std(), rel=0.05)
 
 
 def test_object_frame_weights_by_probability_and_is_none_when_nothing_is_occupied():
@@ -711,10 +842,27 @@ def test_npz_round_trip_and_the_loaded_map_keeps_integrating_identically(tmp_pat
         assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), name
     assert metadata['frame_id'] == 'object' and metadata['extra'] == {'bag': 'run3.mcap'}
     assert metadata['format_version'] == map_io.FORMAT_VERSION
+    # A loaded map starts new visits: later data (past the visit gap) lands identically.
     more = np.asarray(grid.spec.centre) + np.random.default_rng(9).normal(0, 0.01, (700, 3))
     for g in (grid, loaded):
-        g.integrate(more, np.full(700, 0.5))
+        g.integrate(more, np.linspace(10.0, 12.0, 700))
     assert same_grid(grid, loaded)
+
+
+def test_a_version_1_map_loads_with_the_model_it_was_built_with(tmp_path):
+    path = map_io.save_npz(example_grid(), tmp_path / 'old.npz')
+    with np.load(path) as data:
+        arrays = dict(data)
+    meta = json.loads(bytes(arrays['metadata']).decode())
+    for name in ('distance_to', 'evidence_rate', 'visit_gap'):
+        del meta[name]
+    meta['format_version'] = 1
+    arrays['metadata'] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    np.savez(path, **arrays)
+    loaded, metadata = map_io.load_npz(path)
+    assert (loaded.model.distance_to, loaded.model.evidence_rate, loaded.model.visit_gap) == \
+        ('centre', 0.0, 0.0)
+    assert loaded.model.sigma == 0.003 and np.array_equal(loaded.log_odds, example_grid().log_odds)
 
 
 def test_loading_a_non_map_file_raises_value_error_naming_it(tmp_path):

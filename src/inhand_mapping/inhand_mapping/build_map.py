@@ -27,7 +27,6 @@ from inhand_mapping.clouds import pack_registered, unpack_registered
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import (OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS,
                                            make_grid, make_registrar)
-from inhand_mapping.occupancy import WindowedIntegrator
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 from inhand_mapping.registration import HISTORY_SECONDS
 
@@ -189,11 +188,9 @@ def build(bag: Path, registration_values: dict, occupancy_values: dict,
           progress: bool = True) -> dict:
     """Run the bag through registration and occupancy; returns the pieces and a report."""
     grid = make_grid(occupancy_values)
-    integrator = WindowedIntegrator(grid, occupancy_values['integration_window'])
     registration = BagRegistration(bag, registration_values, progress)
-    for points, times, _ in registration:
-        integrator.add(points, times)
-    integrator.flush()
+    for points, times, fingers in registration:
+        grid.integrate(points, times, fingers)
     return {'grid': grid, 'registrar': registration.registrar, 'report': registration.report}
 
 

@@ -2,7 +2,9 @@
 
 * NPZ holds log-odds, hit counts and first-touch times of every cell, with the grid
   geometry, the frame, the sensor-model parameters and the integration counters, so
-  ``load_npz`` gives back the same map, ready to keep integrating.
+  ``load_npz`` gives back the same map, ready to keep integrating (the fingers' current
+  visits are not saved: after loading, every finger starts a new visit).
+  Version 1 files (before dwell and visits) load with the model they were built with.
 * PLY (binary little-endian) holds one vertex per cell with ``x y z`` (cell centre, float),
   ``intensity`` (occupancy probability) and the ``hits`` and ``first_touch`` scalar fields:
   CloudCompare, MeshLab, Open3D and PCL open it.
@@ -13,6 +15,7 @@ Both are written atomically (temporary file, then rename).
 from __future__ import annotations
 
 import json
+from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +25,10 @@ from inhand_mapping.occupancy import GridSpec, IntegrationCounts, OccupancyGrid,
 
 __all__ = ['save_npz', 'load_npz', 'save_ply', 'read_ply', 'FORMAT_VERSION']
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+SENSOR_MODEL_FIELDS = tuple(f.name for f in fields(SensorModel))
+# Version 1 maps were built with every sample a full measurement and eq. 3 at cell centres.
+VERSION_1_MODEL = {'distance_to': 'centre', 'evidence_rate': 0.0, 'visit_gap': 0.0}
 
 
 def save_npz(grid: OccupancyGrid, path, frame_id: str = 'object', extra: dict | None = None) -> Path:
@@ -31,9 +37,7 @@ def save_npz(grid: OccupancyGrid, path, frame_id: str = 'object', extra: dict | 
         'format_version': FORMAT_VERSION, 'frame_id': frame_id,
         'size': spec.size, 'resolution': spec.resolution, 'centre': list(spec.centre),
         'origin': spec.origin.tolist(),
-        'sigma': model.sigma, 'p_z_given_not_occupied': model.p_z_given_not_occupied,
-        'prior': model.prior, 'clamp_min': model.clamp_min, 'clamp_max': model.clamp_max,
-        'neighbourhood': model.neighbourhood,
+        **asdict(model),
         'counts': vars(grid.counts), 'extra': extra or {},
     }
     path = Path(path)
@@ -56,13 +60,13 @@ def load_npz(path) -> tuple[OccupancyGrid, dict]:
     except Exception as error:  # numpy/zipfile raise many kinds for a foreign file
         raise ValueError(f'{path}: not a map saved by this software '
                          f'({type(error).__name__}: {error})') from None
+    if metadata.get('format_version') == 1:
+        metadata = {**VERSION_1_MODEL, **metadata, 'format_version': FORMAT_VERSION}
     if metadata.get('format_version') != FORMAT_VERSION:
         raise ValueError(f'{path}: map format {metadata.get("format_version")}, '
                          f'this software reads {FORMAT_VERSION}')
     spec = GridSpec(metadata['size'], metadata['resolution'], tuple(metadata['centre']))
-    model = SensorModel(metadata['sigma'], metadata['p_z_given_not_occupied'],
-                        metadata['prior'], metadata['clamp_min'], metadata['clamp_max'],
-                        metadata['neighbourhood'])
+    model = SensorModel(**{name: metadata[name] for name in SENSOR_MODEL_FIELDS})
     grid = OccupancyGrid(spec, model)
     if arrays['log_odds'].shape != spec.shape:
         raise ValueError(f'{path}: grid shape {arrays["log_odds"].shape} does not match '

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from inhand_common.parameters import ParameterError, ParamSpec
-from inhand_mapping.occupancy import GridSpec, OccupancyGrid, SensorModel
+from inhand_mapping.occupancy import DISTANCES, GridSpec, OccupancyGrid, SensorModel
 from inhand_mapping.registration import Registrar
 
 __all__ = ['REGISTRATION_PARAMETERS', 'OCCUPANCY_PARAMETERS', 'make_registrar', 'make_grid',
@@ -50,12 +50,18 @@ OCCUPANCY_PARAMETERS = (
     ParamSpec('clamp_max', 0.97, 'Highest occupancy a cell can reach (log-odds clamping)',
               minimum=0.01, maximum=0.999),
     ParamSpec('neighbourhood', 1, '1: update the containing cell (the paper); 27: also its '
-              '26 neighbours, each with eq. 3 at its own centre', choices=(1, 27)),
+              '26 neighbours, each with eq. 3 at its own distance', choices=(1, 27)),
+    ParamSpec('distance_to', 'cell', "Distance in eq. 3: 'cell' (to the nearest point of "
+              "the cell, 0 inside it) or 'centre' (to the cell centre, the paper literally)",
+              choices=DISTANCES),
+    ParamSpec('evidence_rate', 15.0, 'Hz: one measurement of evidence per 1/evidence_rate '
+              's a fingertip spends in a cell (a sample weighs its dwell time); 0: every '
+              'sample is one measurement', minimum=0.0, maximum=1000.0),
+    ParamSpec('visit_gap', 3.0, 'Seconds: samples of one finger in one cell less than this '
+              'apart are one visit, worth at most one measurement; 0: every sample',
+              minimum=0.0, maximum=600.0),
     ParamSpec('occupied_threshold', 0.8, 'Cells above this probability are occupied '
               '(occupancy/occupied, centre of mass, PLY)', minimum=0.5, maximum=0.999),
-    ParamSpec('integration_window', 0.1, 'Seconds of sensor time integrated as one batch '
-              '(clamping happens per batch; fixed windows make the map independent of '
-              'message batching)', minimum=0.001, maximum=10.0),
     ParamSpec('publish_rate', 2.0, 'Map publications per second (only when it changed)',
               minimum=0.01, maximum=100.0),
     ParamSpec('output_dir', 'maps', 'Folder occupancy/save writes <map_name>.npz and .ply to'),
@@ -103,5 +109,6 @@ def make_grid(values: Mapping[str, Any]) -> OccupancyGrid:
                     tuple(values['workspace_centre']))
     model = SensorModel(values['sensor_sigma'], values['p_z_given_not_occupied'],
                         values['prior'], values['clamp_min'], values['clamp_max'],
-                        values['neighbourhood'])
+                        values['neighbourhood'], values['distance_to'],
+                        values['evidence_rate'], values['visit_gap'])
     return OccupancyGrid(spec, model)

@@ -1,45 +1,60 @@
 """The probabilistic voxel map: the paper's Gaussian sensor model and Bayesian update.
 
 Sensor model (paper eq. 3): a fingertip measurement ``x`` supports the occupancy of a cell
-with centre ``mu`` by the unnormalised Gaussian
+by the unnormalised Gaussian
 
-    P(Z | O) = exp(-|x - mu|^2 / (2 sigma^2)).
+    L = P(Z | O) = exp(-d^2 / (2 sigma^2)),
+
+with ``d`` the distance from ``x`` to the cell: to its nearest point by default
+(``distance_to='cell'``: 0 inside, so a measurement inside a cell supports it fully and the
+Gaussian of the sensor noise only matters for neighbours), or to its centre
+(``distance_to='centre'``, the paper read literally: then a measurement more than 2.5 mm
+from the centre of its own 5 mm cell lowers it; see the README).
 
 Update (paper eq. 4) in log-odds, with ``P(Z | not O)`` a constant ``c`` (the paper does not
-state it; see the README for the choice of 0.45):
+state it; the README derives 0.45 from the paper's thresholds):
 
-    l <- clamp(l + log(P(Z | O) / c), l_min, l_max),    l = log(p / (1 - p)).
+    l <- clamp(l + w log(L / c), l_min, l_max),    l = log(p / (1 - p)),
 
-One measurement at a cell centre gives p = 1 / (1 + c) = 0.69 (< 0.7: a stray point stays
-out of the map); two give 0.83 (> 0.8). A measurement far from the centre (L < c) lowers the
-cell: eq. 4 read literally.
+clamped after every update as in OctoMap. One full measurement inside a cell gives
+p = 1 / (1 + c) = 0.69 (under the paper's 0.7: a stray point stays out of the map); two
+independent ones give 0.83 (over 0.8).
+
+``w`` in [0, 1] says how much of an independent measurement the sample is:
+
+* **dwell** (dwell.py): a sample counts for the time the fingertip spent where it was
+  sampled, in units of ``1 / evidence_rate`` (15 Hz: the paper's rate), so the same motion
+  gives the same evidence at 15 or 240 Hz and a finger flying past between strokes counts
+  for little;
+* **visits**: samples of one finger in one cell less than ``visit_gap`` apart are one
+  visit, and a visit gives at most one measurement's worth. A fingertip resting on a
+  spot, or lifting off it again and again (the paper's repeated off-surface movements),
+  is one touch, not many; a cell passes 0.8 when it is touched again later or by another
+  finger.
+
+With ``evidence_rate = 0`` and ``visit_gap = 0`` every sample is a full measurement (the
+paper). Without times (``integrate(points)``) there is neither dwell nor visits.
 
 The update can touch the containing cell only (the paper) or, optionally, its 26
-neighbours as well, each with eq. 3 at its own centre.
-
-How it is fast: with ``e`` the offset of a point from its containing cell's centre and
-``o`` a neighbour offset (in cells), ``|e - o|^2 = |e|^2 - 2 o.e + |o|^2``. Summed over the
-points of a batch in one containing cell this needs only the count ``n``, ``sum e`` and
-``sum |e|^2`` per cell: one pass over the points gathers them, then each touched cell adds
-its contribution to itself (and to its 26 neighbours). Exact; the two loops are compiled
-(occupancy_kernels.py), because a scatter in numpy costs several passes per statistic.
-
-Clamping (as in OctoMap) is applied after each batch. The nodes and ``build_map`` feed the
-grid through :class:`WindowedIntegrator`, which cuts the measurement stream into fixed
-windows of sensor time, so the map does not depend on how messages happened to be batched.
+neighbours as well, each with eq. 3 at its own distance. Samples are applied one by one in
+the order given (a compiled loop, occupancy_kernels.py), and the dwell and visit state is
+kept between calls, so the map does not depend on how the stream was cut into batches.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from inhand_mapping import occupancy_kernels as kernels
+from inhand_mapping.dwell import DwellWeights
 
-__all__ = ['GridSpec', 'SensorModel', 'OccupancyGrid', 'IntegrationCounts',
-           'WindowedIntegrator', 'logit', 'probability']
+__all__ = ['DISTANCES', 'GridSpec', 'SensorModel', 'OccupancyGrid', 'IntegrationCounts',
+           'logit', 'probability']
+
+DISTANCES = ('cell', 'centre')
 
 
 def logit(p):
@@ -96,10 +111,17 @@ class SensorModel:
     clamp_min: float = 0.12
     clamp_max: float = 0.97
     neighbourhood: int = 1  # 1: containing cell (paper); 27: also the 26 neighbours
+    distance_to: str = 'cell'  # eq. 3's distance: to the cell, or to its 'centre' (paper)
+    evidence_rate: float = 15.0  # Hz: samples per second worth one measurement each; 0: every sample
+    visit_gap: float = 3.0  # s: one finger's samples in one cell this close are one visit
 
     def __post_init__(self) -> None:
         if self.neighbourhood not in (1, 27):
             raise ValueError(f'neighbourhood must be 1 or 27, not {self.neighbourhood}')
+        if self.distance_to not in DISTANCES:
+            raise ValueError(f'distance_to must be one of {DISTANCES}, not {self.distance_to!r}')
+        if not (self.evidence_rate >= 0 and self.visit_gap >= 0):
+            raise ValueError('need evidence_rate >= 0 and visit_gap >= 0')
         if not 0.0 < self.clamp_min < self.prior < self.clamp_max < 1.0:
             raise ValueError('need 0 < clamp_min < prior < clamp_max < 1')
         if not 0.0 < self.p_z_given_not_occupied < 1.0 or self.sigma <= 0:
@@ -131,40 +153,45 @@ class OccupancyGrid:
         self._l_min = float(logit(model.clamp_min))
         self._l_max = float(logit(model.clamp_max))
         self._log_c = math.log(model.p_z_given_not_occupied)
-        self._scratch_arrays = None
+        self._dwell = (DwellWeights(1.0 / model.evidence_rate, spec.resolution)
+                       if model.evidence_rate > 0 else None)
+        self._changed_mark = np.zeros(spec.cells_per_axis ** 3, dtype=np.bool_)
+        self._visit_last = np.empty((0, spec.cells_per_axis ** 3))
+        self._visit_weight = np.empty((0, spec.cells_per_axis ** 3))
 
     # ------------------------------------------------------------------ update
-    def integrate(self, points, times=None) -> IntegrationCounts:
-        """Apply eq. 4 for every point (map frame, metres) as one batch.
+    def integrate(self, points, times=None, fingers=None) -> IntegrationCounts:
+        """Apply eq. 4 for every point (map frame, metres), in order.
 
-        ``times`` (seconds, one per point) feed the first-touch time. Points outside the
-        workspace are counted and ignored; NaN or infinite ones are rejected and counted.
-        Returns this batch's counts.
+        ``times`` (seconds, one per point) feed the first-touch time, the dwell weights and
+        the visits; ``fingers`` (non-negative integers, one per point; default all 0) say
+        whose fingertip each point is. Points outside the workspace are counted and
+        ignored; NaN or infinite ones are rejected and counted. Returns this batch's counts.
         """
         points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        count = points.shape[0]
         has_times = times is not None
         if has_times:
             times = np.ascontiguousarray(times, dtype=np.float64).reshape(-1)
-            if times.shape[0] != points.shape[0]:
-                raise ValueError(f'{points.shape[0]} points but {times.shape[0]} times')
+            if times.shape[0] != count:
+                raise ValueError(f'{count} points but {times.shape[0]} times')
         else:
             times = np.empty(0)
+        fingers = self._finger_ids(fingers, count)
         spec, model = self.spec, self.model
-        n = spec.cells_per_axis
-        scratch = self._scratch()
-        touched = np.empty(min(points.shape[0], n ** 3), dtype=np.int64)
-        n_touched, integrated, outside, invalid = kernels.accumulate(
-            points, times, has_times, spec.origin, 1.0 / spec.resolution, n, scratch['count'],
-            scratch['sum_e'], scratch['sum_e2'], scratch['first'], touched)
-        kernels.apply(touched, n_touched, scratch['count'], scratch['sum_e'], scratch['sum_e2'],
-                      scratch['first'], self.log_odds.reshape(-1),
-                      self._probability.reshape(-1), self.hits.reshape(-1),
-                      self.first_touch.reshape(-1), n,
-                      -spec.resolution ** 2 / (2.0 * model.sigma ** 2), self._log_c,
-                      1 if model.neighbourhood == 27 else 0, self._l_min, self._l_max)
-        if has_times and integrated:
-            touched_times = self.first_touch.reshape(-1)[touched[:n_touched]]
-            self.earliest_touch = min(self.earliest_touch, float(np.nanmin(touched_times)))
+        weights = np.ones(count)
+        if has_times and self._dwell is not None:
+            weights = self._dwell.weights(points, times, fingers)
+        visit_last, visit_weight = self._visit_state(int(fingers.max()) + 1 if count else 1)
+        integrated, outside, invalid, earliest = kernels.integrate(
+            points, times, has_times, fingers, weights, spec.origin, 1.0 / spec.resolution,
+            spec.cells_per_axis, spec.resolution ** 2 / (2.0 * model.sigma ** 2), self._log_c,
+            1 if model.neighbourhood == 27 else 0, 1 if model.distance_to == 'cell' else 0,
+            model.visit_gap, visit_last, visit_weight, self.log_odds.reshape(-1),
+            self._probability.reshape(-1), self.hits.reshape(-1),
+            self.first_touch.reshape(-1), self._l_min, self._l_max,
+            np.empty(min(count, self.log_odds.size), dtype=np.int64), self._changed_mark)
+        self.earliest_touch = min(self.earliest_touch, float(earliest))
         batch = IntegrationCounts(integrated=int(integrated), outside=int(outside),
                                   invalid=int(invalid))
         self.counts.integrated += batch.integrated
@@ -172,17 +199,28 @@ class OccupancyGrid:
         self.counts.invalid += batch.invalid
         return batch
 
-    def _scratch(self) -> dict[str, np.ndarray]:
-        """Per-cell sums of one batch; kept between batches (the kernel clears what it used)."""
-        if self.__dict__.get('_scratch_arrays') is None:
+    @staticmethod
+    def _finger_ids(fingers, count: int) -> np.ndarray:
+        if fingers is None:
+            return np.zeros(count, dtype=np.int64)
+        fingers = np.asarray(fingers).reshape(-1)
+        if fingers.shape[0] != count:
+            raise ValueError(f'{count} points but {fingers.shape[0]} finger ids')
+        if count and (not np.issubdtype(fingers.dtype, np.integer) or fingers.min() < 0):
+            raise ValueError('finger ids must be non-negative integers')
+        return np.ascontiguousarray(fingers, dtype=np.int64)
+
+    def _visit_state(self, fingers: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per finger and cell: when the finger was last there, and how much its current
+        visit has given. Grown when a new finger id appears."""
+        have = self._visit_last.shape[0]
+        if fingers > have:
             size = self.spec.cells_per_axis ** 3
-            self._scratch_arrays = {
-                'count': np.zeros(size, dtype=np.int64),
-                'sum_e': np.zeros((3, size), dtype=np.float64),
-                'sum_e2': np.zeros(size, dtype=np.float64),
-                'first': np.full(size, np.inf, dtype=np.float64),
-            }
-        return self._scratch_arrays
+            self._visit_last = np.concatenate(
+                [self._visit_last, np.full((fingers - have, size), -np.inf)])
+            self._visit_weight = np.concatenate(
+                [self._visit_weight, np.zeros((fingers - have, size))])
+        return self._visit_last.reshape(-1), self._visit_weight.reshape(-1)
 
     def reset(self) -> None:
         self.log_odds.fill(self.prior_log_odds)
@@ -191,6 +229,10 @@ class OccupancyGrid:
         self.hits.fill(0)
         self.first_touch.fill(np.nan)
         self.counts = IntegrationCounts()
+        self._visit_last.fill(-np.inf)
+        self._visit_weight.fill(0.0)
+        if self._dwell is not None:
+            self._dwell.reset()
 
     # ------------------------------------------------------------------ queries
     def probabilities(self) -> np.ndarray:
@@ -219,84 +261,3 @@ class OccupancyGrid:
             mask = mask & (p > threshold)
         ijk = np.argwhere(mask)
         return (self.spec.cell_centres(ijk), p[mask], self.hits[mask], self.first_touch[mask])
-
-
-@dataclass
-class WindowedIntegrator:
-    """Feeds a grid in fixed windows of sensor time, whatever the input batching.
-
-    Points are held until a point of a later window arrives (or ``flush``), then each
-    complete window is integrated as one batch, in time order. The node (points in
-    messages) and ``build_map`` (points from a bag) therefore build the same map. This
-    holds for streams whose stamps never go back past a window already integrated, which
-    is what the registrar emits; a point that does is integrated with its own batch and
-    counted in ``late_points``.
-    """
-
-    grid: OccupancyGrid
-    window: float = 0.1
-    late_points: int = 0
-    _points: list = field(default_factory=list)
-    _times: list = field(default_factory=list)
-    _integrated_until: float = -math.inf  # windows before this one are done
-
-    def add(self, points, times) -> int:
-        """Queue points; integrates every window that is now complete. Returns how many
-        points were integrated (or counted as outside/invalid) by this call."""
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        times = np.asarray(times, dtype=np.float64).reshape(-1)
-        if len(points):
-            self._points.append(points)
-            self._times.append(times)
-        if not self._times:
-            return 0
-        all_times = np.concatenate(self._times)
-        finite = all_times[np.isfinite(all_times)]
-        if finite.size == 0:
-            return self.flush()
-        latest_window = math.floor(finite.max() / self.window)
-        all_points = np.concatenate(self._points)
-        # Everything before the newest window is complete (NaN times go out now, rejected).
-        ready = ~(np.floor(all_times / self.window) >= latest_window)
-        self._points = [all_points[~ready]]
-        self._times = [all_times[~ready]]
-        return self._integrate_windows(all_points[ready], all_times[ready])
-
-    def clear(self) -> None:
-        """Forget queued points and window history (the map is being reset)."""
-        self._points, self._times = [], []
-        self._integrated_until = -math.inf
-
-    def flush(self) -> int:
-        """Integrate whatever is queued (end of a bag, or before saving/publishing)."""
-        if not self._times:
-            return 0
-        points, times = np.concatenate(self._points), np.concatenate(self._times)
-        self._points, self._times = [], []
-        return self._integrate_windows(points, times)
-
-    @property
-    def pending(self) -> int:
-        return int(sum(len(t) for t in self._times))
-
-    def _integrate_windows(self, points: np.ndarray, times: np.ndarray) -> int:
-        if len(points) == 0:
-            return 0
-        done = 0
-        valid = np.isfinite(times)
-        if not valid.all():  # rejected and counted by the grid, in one go
-            counts = self.grid.integrate(points[~valid], times[~valid])
-            done += counts.invalid
-            points, times = points[valid], times[valid]
-        if len(times) == 0:
-            return done
-        window_ids = np.floor(times / self.window)
-        self.late_points += int(np.count_nonzero(window_ids < self._integrated_until))
-        self._integrated_until = max(self._integrated_until, float(window_ids.max()) + 1.0)
-        order = np.argsort(window_ids, kind='stable')
-        points, times, window_ids = points[order], times[order], window_ids[order]
-        boundaries = np.flatnonzero(np.diff(window_ids) != 0) + 1
-        for chunk_p, chunk_t in zip(np.split(points, boundaries), np.split(times, boundaries)):
-            counts = self.grid.integrate(chunk_p, chunk_t)
-            done += counts.integrated + counts.outside + counts.invalid
-        return done

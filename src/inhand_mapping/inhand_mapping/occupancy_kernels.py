@@ -1,18 +1,9 @@
 """Compiled inner loops of the occupancy update (numba), used only by occupancy.py.
 
-Why compiled: the update is a scatter (each point adds to its cell, or to 27 cells), and
-in numpy a scatter costs several full passes over the points plus a ``bincount`` per
-statistic; measured on the project machine that tops out near 15 M points/s, while one
-compiled pass does over 100 M points/s. The maths is described in occupancy.py.
-
-Two steps per batch:
-
-1. ``accumulate``: one pass over the points; per containing cell the count ``n``, the sum
-   of offsets from the cell centre ``sum e`` and of their squares ``sum |e|^2`` (in cell
-   units), and the earliest time; the cells touched are listed.
-2. ``apply``: per touched cell, the summed ``log(L / c)`` for the cell itself and, with the
-   27-neighbourhood, each neighbour, from those sums; then clamping and resetting the
-   scratch arrays for the next batch.
+Why compiled: the update is a scatter with per-visit state (each sample adds to its cell,
+or to 27 cells, unless its visit has already given its measurement's worth), which in
+numpy would be a sort and several passes per batch; one compiled pass over the samples
+does tens of millions of cell updates per second. The maths is described in occupancy.py.
 """
 
 from __future__ import annotations
@@ -24,13 +15,27 @@ import numpy as np
 
 
 @numba.njit(cache=True, nogil=True)
-def accumulate(points, times, has_times, origin, inv_res, n, count, sum_e, sum_e2, first,
-               touched):
-    """Returns (cells touched, points integrated, outside, invalid)."""
-    n_touched = 0
+def integrate(points, times, has_times, fingers, weights, origin, inv_res, n, half_inv_var,
+              log_c, reach, to_cell, visit_gap, visit_last, visit_weight, log_odds,
+              probability, hits, first_touch, l_min, l_max, changed, changed_mark):
+    """Apply eq. 4 sample by sample, in the order given.
+
+    ``half_inv_var`` = res^2 / (2 sigma^2) (distances are in cells); ``to_cell`` 1: eq. 3's
+    distance is to the nearest point of the cell, 0: to its centre; ``reach`` 0 or 1 (the
+    27-neighbourhood). With times, ``visit_last`` / ``visit_weight`` (fingers x cells) hold
+    each finger's current visit of each cell: when it was last there and how much evidence
+    the visit has given (at most 1). ``probability`` is refreshed at the end around each
+    containing cell (not per update: exp is most of the cost); ``changed`` is a buffer for
+    those cells and ``changed_mark`` a per-cell flag array, all False on entry and return.
+    Returns (integrated, outside, invalid, earliest time).
+    """
+    n_changed = 0
+    axis_d2 = np.empty((3, 3))
     integrated = 0
     outside = 0
     invalid = 0
+    earliest = np.inf
+    cells = n * n * n
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(points.shape[0]):
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
@@ -47,35 +52,26 @@ def accumulate(points, times, has_times, origin, inv_res, n, count, sum_e, sum_e
             outside += 1
             continue
         ix, iy, iz = int(x), int(y), int(z)
+        ex, ey, ez = x - ix - 0.5, y - iy - 0.5, z - iz - 0.5   # offset from the centre
         c = (ix * n + iy) * n + iz
-        if count[c] == 0:
-            touched[n_touched] = c
-            n_touched += 1
-        ex, ey, ez = x - ix - 0.5, y - iy - 0.5, z - iz - 0.5
-        count[c] += 1
-        sum_e[0, c] += ex
-        sum_e[1, c] += ey
-        sum_e[2, c] += ez
-        sum_e2[c] += ex * ex + ey * ey + ez * ez
-        if has_times and t < first[c]:
-            first[c] = t
+        hits[c] += 1
+        if has_times:
+            if not (first_touch[c] <= t):   # NaN: untouched
+                first_touch[c] = t
+            if t < earliest:
+                earliest = t
         integrated += 1
-    return n_touched, integrated, outside, invalid
-
-
-@numba.njit(cache=True, nogil=True)
-def apply(touched, n_touched, count, sum_e, sum_e2, first, log_odds, probability, hits,
-          first_touch, n, gauss, log_c, reach, l_min, l_max):
-    """Add the batch to the map; ``gauss`` = -res^2 / (2 sigma^2), ``reach`` 0 or 1.
-
-    ``probability`` (p of each cell's log-odds) is refreshed for the cells that changed,
-    so readers never need a pass of exp over the whole grid.
-    """
-    for k in range(n_touched):
-        c = touched[k]
-        cnt = count[c]
-        ix, iy, iz = c // (n * n), (c // n) % n, c % n
-        s2, sx, sy, sz = sum_e2[c], sum_e[0, c], sum_e[1, c], sum_e[2, c]
+        w = weights[i]
+        base = fingers[i] * cells
+        # Squared distance (in cells) along each axis to the cells at offsets -1, 0, +1:
+        # the 27 neighbours' distances are sums of three of these.
+        for d in range(3):
+            for axis in range(3):
+                e = ex if axis == 0 else (ey if axis == 1 else ez)
+                u = abs(e - (d - 1))
+                if to_cell:
+                    u = max(u - 0.5, 0.0)
+                axis_d2[axis, d] = u * u
         for dx in range(-reach, reach + 1):
             jx = ix + dx
             if jx < 0 or jx >= n:
@@ -84,36 +80,41 @@ def apply(touched, n_touched, count, sum_e, sum_e2, first, log_odds, probability
                 jy = iy + dy
                 if jy < 0 or jy >= n:
                     continue
+                dxy = axis_d2[0, dx + 1] + axis_d2[1, dy + 1]
+                row = (jx * n + jy) * n
                 for dz in range(-reach, reach + 1):
                     jz = iz + dz
                     if jz < 0 or jz >= n:
                         continue
-                    # sum over points of |e - o|^2 = S2 - 2 o.S1 + n |o|^2
-                    d2 = s2 - 2.0 * (dx * sx + dy * sy + dz * sz) + \
-                        cnt * (dx * dx + dy * dy + dz * dz)
-                    log_odds[(jx * n + jy) * n + jz] += gauss * d2 - cnt * log_c
-        hits[c] += cnt
-        if math.isfinite(first[c]) and not (first_touch[c] <= first[c]):  # NaN: untouched
-            first_touch[c] = first[c]
-    # Clamp every cell this batch changed, then clear the scratch arrays.
-    for k in range(n_touched):
-        c = touched[k]
+                    j = row + jz
+                    dw = w
+                    if has_times:
+                        k = base + j
+                        if not (abs(t - visit_last[k]) <= visit_gap):   # a new visit
+                            visit_weight[k] = 0.0
+                        visit_last[k] = t
+                        dw = min(w, 1.0 - visit_weight[k])
+                        if dw <= 0.0:
+                            continue
+                        visit_weight[k] += dw
+                    value = log_odds[j] - dw * ((dxy + axis_d2[2, dz + 1]) * half_inv_var
+                                                + log_c)
+                    log_odds[j] = min(max(value, l_min), l_max)
+        # The cells changed are this cell's neighbourhood: listed once per containing cell.
+        if not changed_mark[c]:
+            changed_mark[c] = True
+            changed[n_changed] = c
+            n_changed += 1
+    for k in range(n_changed):
+        c = changed[k]
+        changed_mark[c] = False
         ix, iy, iz = c // (n * n), (c // n) % n, c % n
         for jx in range(max(ix - reach, 0), min(ix + reach + 1, n)):
             for jy in range(max(iy - reach, 0), min(iy + reach + 1, n)):
                 for jz in range(max(iz - reach, 0), min(iz + reach + 1, n)):
                     j = (jx * n + jy) * n + jz
-                    if log_odds[j] < l_min:
-                        log_odds[j] = l_min
-                    elif log_odds[j] > l_max:
-                        log_odds[j] = l_max
                     probability[j] = 1.0 / (1.0 + math.exp(-log_odds[j]))
-        count[c] = 0
-        sum_e[0, c] = 0.0
-        sum_e[1, c] = 0.0
-        sum_e[2, c] = 0.0
-        sum_e2[c] = 0.0
-        first[c] = np.inf
+    return integrated, outside, invalid, earliest
 
 
 @numba.njit(cache=True, nogil=True)

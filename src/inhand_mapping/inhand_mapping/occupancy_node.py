@@ -31,7 +31,6 @@ from inhand_common.ros_parameters import declare_parameters
 from inhand_mapping.clouds import unpack_registered
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, make_grid
-from inhand_mapping.occupancy import WindowedIntegrator
 from inhand_mapping.qos import DATA_QOS, LATCHED_QOS, MAP_FRAME
 
 MAP_QOS = LATCHED_QOS
@@ -43,7 +42,6 @@ class OccupancyNode(Node):
         super().__init__('occupancy_node')
         self.values = declare_parameters(self, OCCUPANCY_PARAMETERS)
         self.grid = make_grid(self.values)
-        self.integrator = WindowedIntegrator(self.grid, self.values['integration_window'])
         self.products = MapProducts(self.grid, self.values['occupied_threshold'])
         self._changed = False
         self._latest_stamp = None
@@ -54,16 +52,18 @@ class OccupancyNode(Node):
         self.create_service(Trigger, 'occupancy/reset', self._on_reset)
         self.create_service(Trigger, 'occupancy/save', self._on_save)
         self.create_timer(1.0 / self.values['publish_rate'], self._publish)
-        spec = self.grid.spec
+        spec, model = self.grid.spec, self.grid.model
         self.get_logger().info(
             f'map: {spec.cells_per_axis}^3 cells of {spec.resolution * 1000:g} mm, '
             f'{spec.size:g} m cube centred at {list(spec.centre)} in {MAP_FRAME}; '
-            f'neighbourhood {self.grid.model.neighbourhood}, '
-            f'P(Z|not O) {self.grid.model.p_z_given_not_occupied:g}')
+            f'neighbourhood {model.neighbourhood}, distance to {model.distance_to}, '
+            f'P(Z|not O) {model.p_z_given_not_occupied:g}, evidence rate '
+            f'{model.evidence_rate:g} Hz, visit gap {model.visit_gap:g} s')
 
     def _on_points(self, msg: PointCloud2) -> None:
-        points, times, _ = unpack_registered(from_point_cloud2(msg))
-        if self.integrator.add(points, times):
+        points, times, fingers = unpack_registered(from_point_cloud2(msg))
+        if len(points):
+            self.grid.integrate(points, times, fingers)
             self._changed = True
         if len(times):
             self._latest_stamp = msg.header.stamp
@@ -87,7 +87,6 @@ class OccupancyNode(Node):
             self._com.publish(msg)
 
     def _on_reset(self, _request, response):
-        self.integrator.clear()
         self.grid.reset()
         self._changed = True
         response.success = True
@@ -96,8 +95,6 @@ class OccupancyNode(Node):
         return response
 
     def _on_save(self, _request, response):
-        if self.integrator.flush():
-            self._changed = True
         try:
             paths = save_map(self.grid, Path(self.values['output_dir']), self.values['map_name'],
                              self.values['occupied_threshold'], MAP_FRAME,
@@ -117,8 +114,7 @@ class OccupancyNode(Node):
         counts = self.grid.counts
         self.get_logger().info(
             f'stopped: {counts.integrated} points integrated, {counts.outside} outside the '
-            f'workspace, {counts.invalid} invalid, {self.integrator.late_points} late (stamped in '
-            f'a window already integrated), {self.integrator.pending} not yet integrated')
+            f'workspace, {counts.invalid} invalid')
 
 
 def main(args=None) -> int:

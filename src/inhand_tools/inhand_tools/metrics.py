@@ -32,8 +32,12 @@ Definitions (metres inside, millimetres in the reported ``*_mm`` values)
   uniform by area).
 * **Normal offset** = mean over ``A`` of ``(a - s) . n_s``, ``s`` the nearest sample: > 0 when
   the map sits outside the surface (a fingertip sensor above the contact would do that).
-* **Stray cells** = occupied cells within one cell (Chebyshev <= 1) of the cell of a true
-  stray point that is farther than ``stray_surface_distance`` (5 mm) from the surface.
+* **Stray cells** = occupied cells that hold (the same cell, no tolerance) a true stray
+  point farther than ``stray_surface_distance`` (5 mm) from the surface and hold no surface
+  sample (not in ``G``): a cell holding surface is right to be occupied whatever else passed
+  through it. The simulator's off-surface samples start 6 mm from the surface, so a stray's
+  neighbouring cell is often a surface cell. An occupied cell merely next to a stray's
+  cell is not a stray cell (the off-surface cells count it if it is more than a cell off).
   **Off-surface cells** = occupied cells not within tolerance of ``G`` (``|A|`` minus the
   correct ones), whatever put them there.
 * Registered raw points (:func:`point_metrics`): the same distances with the points in place
@@ -232,14 +236,15 @@ def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
     if com_map is not None and com_truth is not None:
         com_error = float(np.linalg.norm(com_map - com_truth))
 
-    # Strays: true off-surface fingertip positions, and occupied cells next to them.
+    # Strays: true off-surface fingertip positions, and the occupied cells that hold one
+    # but no surface sample (a cell holding surface is right to be occupied).
     far_strays = np.empty((0, 3))
     if len(truth.strays):
         far_strays = truth.strays[truth.distance(truth.strays)[0] > stray_surface_distance]
     stray_cells = 0
     if len(far_strays) and len(occupied):
-        near_strays = _dilated_keys(cell_indices(far_strays, lattice), 1)
-        stray_cells = int(np.count_nonzero(np.isin(occupied_keys, near_strays)))
+        stray_keys = np.setdiff1d(_keys(cell_indices(far_strays, lattice)), surface_keys)
+        stray_cells = int(np.count_nonzero(np.isin(occupied_keys, stray_keys)))
 
     mm = 1000.0
     return {
@@ -320,7 +325,7 @@ METRIC_LABELS = {
     'surface_to_map_mm': ('  explored surface -> map, mean (mm)', '{:.2f}'),
     'normal_offset_mm': ('mean offset along the normal (mm, + outside)', '{:+.2f}'),
     'com_error_mm': ('centre-of-mass error (mm)', '{:.2f}'),
-    'stray_cells': ('occupied cells at true strays (> 5 mm off)', '{:d}'),
+    'stray_cells': ('occupied cells holding true strays (> 5 mm off), not surface', '{:d}'),
     'off_surface_cells': ('occupied cells off the surface (> 1 cell)', '{:d}'),
     'strays_far_from_surface': ('true stray points > 5 mm off the surface', '{:d}'),
     'points': ('registered points', '{:d}'),
