@@ -34,7 +34,7 @@ Each topic is delivered in order, but the topics are not ordered with respect to
 other: a fast replay can deliver one finger's stream seconds of sensor time ahead of
 another's. Registered points are therefore released in time order up to a watermark: the
 oldest of the newest stamps of the finger streams (no stream can still deliver anything
-older). Downstream (the occupancy windows) then sees one time-ordered stream, whatever
+older). Downstream (the occupancy update) then sees one time-ordered stream, whatever
 the delivery order, which is what makes the live map equal ``build_map``'s.
 
 Object poses arrive in time order; a duplicate or older one is ignored
