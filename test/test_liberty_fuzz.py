@@ -263,23 +263,30 @@ def _flip(data, rng):
     return bytes(data)
 
 
-@pytest.mark.parametrize('accept_replies', [False, True])
-@pytest.mark.parametrize('seed', range(25))
-def test_bit_flips_clean_records(seed, accept_replies):
-    rng = random.Random(3000 + seed)
-    maker = Maker(rng)
+def _flipped_stream(maker, rng, probability: float, max_flips: int):
+    """150 records, each flipped (1 to ``max_flips`` bits) with ``probability``: the stream,
+    the records' keys and the indices of the flipped ones."""
     stream = bytearray()
     keys = []
     flipped = set()
     for i in range(150):
         data, key = maker.record()
-        if rng.random() < 0.25:
-            data = _flip(data, rng)
+        if rng.random() < probability:
+            for _ in range(rng.randint(1, max_flips)):
+                data = _flip(data, rng)
             flipped.add(i)
         stream += data
         keys.append(key)
+    return bytes(stream), keys, flipped
+
+
+@pytest.mark.parametrize('accept_replies', [False, True])
+@pytest.mark.parametrize('seed', range(25))
+def test_bit_flips_clean_records(seed, accept_replies):
+    rng = random.Random(3000 + seed)
+    stream, keys, flipped = _flipped_stream(Maker(rng), rng, 0.25, 1)
     parser = BinaryStreamParser(LAYOUT, accept_replies=accept_replies)
-    out = feed_in_chunks(parser, bytes(stream), rng)
+    out = feed_in_chunks(parser, stream, rng)
     records = [r for r in out if isinstance(r, StationRecord)]
     got = [key_of(r) for r in records]
     # Every record that was not flipped comes out intact and in order.
@@ -298,20 +305,9 @@ def test_bit_flips_raw_records_loss_is_bounded(seed, layout):
     # Random payloads (they may hold 'LY' or CR LF), up to three flips per record,
     # neighbours may both be flipped.
     rng = random.Random(4000 + seed)
-    maker = Maker(rng, layout, clean=False)
-    stream = bytearray()
-    keys = []
-    flipped = set()
-    for i in range(150):
-        data, key = maker.record()
-        if rng.random() < 0.2:
-            for _ in range(rng.randint(1, 3)):
-                data = _flip(data, rng)
-            flipped.add(i)
-        stream += data
-        keys.append(key)
+    stream, keys, flipped = _flipped_stream(Maker(rng, layout, clean=False), rng, 0.2, 3)
     parser = BinaryStreamParser(layout)
-    out = feed_in_chunks(parser, bytes(stream), rng)
+    out = feed_in_chunks(parser, stream, rng)
     got = {key_of(r) for r in out}
     lost = {i for i, k in enumerate(keys) if i not in flipped and k not in got}
     # Only the neighbour right after a flipped record may be lost with it.

@@ -407,12 +407,9 @@ def test_visits_and_weights_match_the_brute_force_reference(neighbourhood, dista
     times = np.repeat(np.arange(steps // 3) * 0.02, 3)
     fingers = np.tile([0, 1, 2], steps // 3)
     points = np.cumsum(rng.normal(0, 0.0012, (steps, 3)), axis=0) % 0.03 - 0.015
-    grid = OccupancyGrid(spec, model)
     batches = np.array_split(np.arange(steps), 4)
-    weights = []
-    for part in batches:
-        before = grid._dwell.weights(points[part], times[part], fingers[part])
-        weights.append(before)
+    dwell = DwellWeights(1.0 / model.evidence_rate, spec.resolution)
+    weights = [dwell.weights(points[p], times[p], fingers[p]) for p in batches]
     grid = OccupancyGrid(spec, model)
     for part in batches:
         grid.integrate(points[part], times[part], fingers[part])

@@ -182,7 +182,9 @@ class OccupancyGrid:
         weights = np.ones(count)
         if has_times and self._dwell is not None:
             weights = self._dwell.weights(points, times, fingers)
-        visit_last, visit_weight = self._visit_state(int(fingers.max()) + 1 if count else 1)
+        # Visits need times; without them the kernel never reads the (then empty) state.
+        visit_last, visit_weight = self._visit_state(
+            int(fingers.max()) + 1 if has_times and count else 0)
         integrated, outside, invalid, earliest = kernels.integrate(
             points, times, has_times, fingers, weights, spec.origin, 1.0 / spec.resolution,
             spec.cells_per_axis, spec.resolution ** 2 / (2.0 * model.sigma ** 2), self._log_c,
