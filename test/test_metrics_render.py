@@ -198,6 +198,22 @@ def test_a_surface_cell_holding_a_far_stray_is_not_a_stray_cell():
     assert scores['off_surface_cells'] == 0
 
 
+def test_a_cell_the_surface_grazes_within_the_tracker_noise_is_not_a_stray_cell():
+    """A far stray in the cell above a line of surface: the surface runs 0.5 mm below
+    that cell (its noisy contacts fill it), or 1.5 mm below (more than the 1 mm margin)."""
+    x = (np.arange(1000) + 0.5) * 1e-4
+    for surface_z, margin, counted in [(0.0045, 0.001, 0), (0.0045, 0.0, 1),
+                                       (0.0035, 0.001, 1)]:
+        surface = np.stack([x, np.full(x.size, 0.0025), np.full(x.size, surface_z)], axis=1)
+        stray = np.array([[0.0525, 0.0025, 0.0098]])          # cell (10, 0, 1)
+        truth = SurfaceTruth(surface, surface, None, stray, explored_radius=0.005)
+        assert truth.distance(stray)[0][0] > 0.005
+        cells = np.array([(i, 0, 0) for i in range(20)] + [(10, 0, 1)])
+        scores = map_metrics((cells + 0.5) * H, np.full(len(cells), 0.9), Lattice(H), truth,
+                             surface_margin=margin)
+        assert scores['stray_cells'] == counted, (surface_z, margin)
+
+
 def test_a_perfect_map_has_no_stray_cells_with_strays_6_mm_off(perfect_sphere_map):
     # The simulator's off-surface samples start 6 mm from the surface: their neighbouring
     # cells are often surface cells, which a perfect map rightly occupies.

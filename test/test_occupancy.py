@@ -28,7 +28,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 
 from inhand_common.point_cloud import from_point_cloud2, pack_rgb, to_point_cloud2
 from inhand_mapping import map_io
-from inhand_mapping.dwell import DwellWeights
+from inhand_mapping.dwell import DwellWeights, WeightedSamples
 from inhand_mapping.entropy import cell_entropy, entropy_weights, eq10_entropy, map_entropy
 from inhand_mapping.object_frame import object_frame
 from inhand_mapping.occupancy import (GridSpec, IntegrationCounts, OccupancyGrid,
@@ -203,6 +203,7 @@ def test_neighbourhood_27_updates_each_neighbour_with_eq3_at_its_own_centre():
     offset = np.array([0.0023, 0.0022, -0.0024])
     point = centre_of(30, 40, 50) + offset
     grid.integrate(point[None], np.array([2.5]))
+    grid.flush()
     touched = np.argwhere(grid.touched_mask())
     assert len(touched) == 27
     assert {tuple(t) for t in touched} == {(30 + a, 40 + b, 50 + c) for a in (-1, 0, 1)
@@ -235,6 +236,7 @@ def test_neighbourhood_27_with_the_distance_to_each_cell():
     grid = OccupancyGrid(model=SensorModel(neighbourhood=27))
     offset = np.array([0.0023, -0.0012, 0.0])
     grid.integrate((centre_of(30, 40, 50) + offset)[None], np.array([1.0]))
+    grid.flush()
     # own cell: inside, L = 1; (+1, 0, 0): 0.2 mm away; (-1, 0, 0): 4.8 mm; (+1, -1, 0):
     # 0.2 mm and 1.3 mm; (0, +1, 0): 3.7 mm (L < c: lowered)
     assert grid.log_odds[30, 40, 50] == pytest.approx(-math.log(C), abs=1e-12)
@@ -409,16 +411,16 @@ def test_visits_and_weights_match_the_brute_force_reference(neighbourhood, dista
     points = np.cumsum(rng.normal(0, 0.0012, (steps, 3)), axis=0) % 0.03 - 0.015
     batches = np.array_split(np.arange(steps), 4)
     dwell = DwellWeights(1.0 / model.evidence_rate, spec.resolution)
-    weights = [dwell.weights(points[p], times[p], fingers[p]) for p in batches]
+    weighed = [dwell.push(points[p], times[p], fingers[p]) for p in batches] + [dwell.flush()]
     grid = OccupancyGrid(spec, model)
     for part in batches:
         grid.integrate(points[part], times[part], fingers[part])
+    grid.flush()
     expected, _, _, counts = reference_log_odds(
-        spec, model, [points[p] for p in batches], [times[p] for p in batches],
-        [fingers[p] for p in batches], weights)
+        spec, model, *zip(*weighed))
     assert np.max(np.abs(grid.log_odds - np.array(expected).reshape(spec.shape))) < 1e-12
-    assert counts['integrated'] == steps
-    w = np.concatenate(weights)
+    assert counts['integrated'] == steps and grid.counts.integrated == steps
+    w = np.concatenate([part.weights for part in weighed])
     assert 0.05 < w.min() and w.max() <= 1.0 and (w < 1).mean() > 0.2   # weights in play
 
 
@@ -436,7 +438,7 @@ def test_outside_and_invalid_points_are_counted_and_ignored():
     assert grid.hits.sum() == 2
     # NaN or infinite times reject otherwise good points
     times = np.array([1.0, np.nan, np.inf])
-    batch = grid.integrate(np.array([[0.05, 0, 0]] * 3), times)
+    batch = grid.integrate(np.array([[0.05, 0, 0]] * 3), times) + grid.flush()
     assert batch == IntegrationCounts(integrated=1, outside=0, invalid=2)
     assert grid.hits.sum() == 3
     # counts accumulate across calls
@@ -476,10 +478,13 @@ def test_first_touch_is_the_earliest_time_and_never_moves_later():
     grid = OccupancyGrid()
     a, b = centre_of(5, 6, 7), centre_of(8, 9, 10)
     grid.integrate(np.array([a, a, a, b]), np.array([3.0, 1.0, 2.0, 7.5]))
+    grid.flush()
     assert grid.first_touch[5, 6, 7] == 1.0 and grid.first_touch[8, 9, 10] == 7.5
     grid.integrate(np.array([a, b]), np.array([5.0, 9.0]))        # later: no change
+    grid.flush()
     assert grid.first_touch[5, 6, 7] == 1.0 and grid.first_touch[8, 9, 10] == 7.5
     grid.integrate(np.array([a]), np.array([0.25]))                # earlier: moves earlier
+    grid.flush()
     assert grid.first_touch[5, 6, 7] == 0.25
     grid.integrate(np.array([b]))                                  # no times: no change
     assert grid.first_touch[8, 9, 10] == 7.5
@@ -516,6 +521,7 @@ def test_cells_lists_touched_cells_and_thresholds():
     a, b = centre_of(1, 2, 3), centre_of(4, 5, 6)
     # two fingers at a (two visits), one at b
     grid.integrate(np.array([a, a, b]), np.array([0.5, 0.7, 0.9]), np.array([0, 1, 0]))
+    grid.flush()
     centres, p, hits, first = grid.cells()
     order = np.argsort(hits)
     assert np.allclose(centres[order], [b, a], atol=1e-15)
@@ -550,6 +556,7 @@ def streamed_grid(points, times, fingers, cuts, model=SensorModel()):
     bounds = [0, *sorted(cuts), len(points)]
     for start, end in zip(bounds[:-1], bounds[1:]):
         grid.integrate(points[start:end], times[start:end], fingers[start:end])
+    grid.flush()
     return grid
 
 
@@ -582,42 +589,85 @@ def test_the_map_does_not_depend_on_message_batching(neighbourhood):
 
 # ============================================================================ dwell, visits
 
+def weigh(dwell, points, times, fingers):
+    """Weights of a whole stream: pushed at once, then flushed."""
+    return WeightedSamples.joined([dwell.push(points, times, fingers), dwell.flush()]).weights
+
+
 def test_dwell_weights_by_hand():
     period, cell = 1 / 15, 0.005
-    dwell = DwellWeights(period, cell)
     # 15 Hz, sliding at 3 cm/s (2 mm per sample, under a cell per period): all 1
     t = np.arange(10) * period
     slow = np.outer(0.03 * t, [1.0, 0.0, 0.0])
-    assert np.allclose(dwell.weights(slow, t, np.zeros(10, int)), 1.0)
-    # 240 Hz, the same slide (another finger): 1/16 each, the first one (no previous) 1
+    assert np.allclose(weigh(DwellWeights(period, cell), slow, t, np.zeros(10, int)), 1.0)
+    # 240 Hz, the same slide: 1/16 each, the first one (no previous sample) 1
     t2 = np.arange(64) / 240.0
-    w = dwell.weights(np.outer(0.03 * t2, [0.0, 1.0, 0.0]), t2, np.ones(64, int))
+    w = weigh(DwellWeights(period, cell), np.outer(0.03 * t2, [0.0, 1.0, 0.0]), t2,
+              np.ones(64, int))
     assert w[0] == 1.0 and np.allclose(w[1:], 1 / 16)
-    # 15 Hz at 0.3 m/s: 2 cm per period, a cell crossed in 1/60 s: weight 1/4 once the
-    # speed is known (from the second sample on); the first has no speed yet
-    fast = DwellWeights(period, cell)
-    w = fast.weights(np.outer(0.3 * t, [0.0, 0.0, 1.0]), t, np.zeros(10, int))
-    assert w[0] == 1.0 and np.allclose(w[1:], 0.25)
-    # a gap of more than two periods: the speed is unknown again; dt is capped at a period
-    t3 = np.array([10.0, 10.0 + period])
-    w = fast.weights(np.array([[0, 0, 1.0], [0, 0, 1.02]]), t3, np.zeros(2, int))
-    assert w[0] == 1.0 and w[1] == pytest.approx(0.25)
-    # time going back by more than a period (a looped bag): the finger starts afresh
-    w = fast.weights(np.array([[0, 0, 0.5]]), np.array([1.0]), np.zeros(1, int))
-    assert w[0] == 1.0
+    # 15 Hz at 0.3 m/s: 2 cm per period, a cell crossed in 1/60 s: weight 1/4, the first
+    # sample too (its speed comes from the next one)
+    w = weigh(DwellWeights(period, cell), np.outer(0.3 * t, [0.0, 0.0, 1.0]), t,
+              np.zeros(10, int))
+    assert np.allclose(w, 0.25)
+    # sliding, then lifting off at 0.3 m/s: the last sample on the surface is already
+    # leaving it (1/4), as is every sample in the air
+    lift = np.where(t > 4.5 * period, 0.3 * (t - 4 * period), 0.0)
+    path = np.stack([0.03 * t, np.zeros(10), lift], axis=1)
+    w = weigh(DwellWeights(period, cell), path, t, np.zeros(10, int))
+    assert np.allclose(w[:4], 1.0) and np.allclose(w[4:], 0.25, rtol=0.02)
+    # neighbours more than two periods away on both sides: the speed is unknown, and a
+    # sample after a gap stands for one period at most
+    t3 = np.array([10.0, 10.5, 10.5 + period, 11.0])
+    p3 = np.array([[0, 0, 0.0], [0, 0, 0.1], [0, 0, 0.12], [0, 0, 0.3]])
+    w = weigh(DwellWeights(period, cell), p3, t3, np.zeros(4, int))
+    assert w[0] == 1.0 and w[3] == 1.0 and w[1:3] == pytest.approx([0.25, 0.25])
     with pytest.raises(ValueError):
         DwellWeights(0.0, cell)
+
+
+def test_dwell_holds_samples_back_until_their_next_period_and_keeps_the_order():
+    period, cell = 1 / 15, 0.005
+    dwell = DwellWeights(period, cell)
+    t = np.repeat(np.arange(6) * period, 2)                       # two fingers per frame
+    fingers = np.tile([0, 1], 6)
+    points = np.outer(0.03 * t, [1.0, 0.0, 0.0]) + fingers[:, None] * 0.05
+    out = dwell.push(points, t, fingers)
+    # frames 0-4 have their next period; frame 5 waits for frame 6
+    assert np.array_equal(out.times, t[:10]) and np.array_equal(out.fingers, fingers[:10])
+    assert dwell.pending == 2
+    assert dwell.push(np.empty((0, 3)), np.empty(0), np.empty(0, int)).count == 0
+    # finger 1 stops; finger 0 goes on: finger 1's last sample is settled once finger 0 is
+    # more than two periods past it (nothing close enough to count can still come)
+    t0 = 5 * period + np.arange(1, 4) * period
+    out = dwell.push(np.outer(0.03 * t0, [1.0, 0.0, 0.0]), t0, np.zeros(3, int))
+    assert list(out.fingers) == [0, 1, 0, 0] and np.allclose(out.weights, 1.0)
+    assert dwell.pending == 1
+    # a time going back more than a period (a looped bag) ends the stream: the held
+    # sample is released as at its end, and the new stream starts afresh
+    out = dwell.push(np.array([[0.0, 0, 0], [0.002, 0, 0]]), np.array([0.0, period]),
+                     np.zeros(2, int))
+    assert list(out.times) == [8 * period, 0.0] and dwell.pending == 1
+    # unusable samples pass with weight 1, in their place
+    out = dwell.push(np.array([[np.nan, 0, 0], [0.004, 0, 0]]), np.array([1.5 * period, np.nan]),
+                     np.zeros(2, int))
+    assert out.count == 0 and dwell.pending == 3
+    out = dwell.flush()
+    assert out.count == 3 and np.isnan(out.points[1, 0]) and np.isnan(out.times[2])
+    assert dwell.pending == 0
 
 
 def test_dwell_weights_do_not_depend_on_batching():
     rng = np.random.default_rng(3)
     points, times, fingers = fingertip_stream(8, count=1500)
-    whole = DwellWeights(1 / 15, 0.005).weights(points, times, fingers)
+    whole = weigh(DwellWeights(1 / 15, 0.005), points, times, fingers)
     cut = DwellWeights(1 / 15, 0.005)
     bounds = [0, *sorted(rng.choice(np.arange(1, 1500), 40, replace=False)), 1500]
-    parts = [cut.weights(points[a:b], times[a:b], fingers[a:b])
-             for a, b in zip(bounds[:-1], bounds[1:])]
-    assert np.array_equal(np.concatenate(parts), whole)
+    parts = [cut.push(points[a:b], times[a:b], fingers[a:b])
+             for a, b in zip(bounds[:-1], bounds[1:])] + [cut.flush()]
+    joined = WeightedSamples.joined(parts)
+    assert np.array_equal(joined.weights, whole)
+    assert np.array_equal(joined.times, times, equal_nan=True)
     assert 0 < whole.min() and whole.max() == 1.0 and len(np.unique(whole)) > 20
 
 
@@ -629,10 +679,12 @@ def test_one_finger_resting_on_a_spot_is_one_touch_at_any_rate():
         grid = OccupancyGrid()
         t = np.arange(0.0, 2.0, 1.0 / rate)
         grid.integrate(np.repeat(cell[None], len(t), axis=0), t, np.zeros(len(t), int))
+        grid.flush()
         assert grid.probabilities()[10, 10, 10] == pytest.approx(1 / (1 + C), abs=1e-12), rate
         assert grid.hits[10, 10, 10] == len(t)
         later = t + 2.0 + 3.5        # 3.5 s after the last sample: a new visit
         grid.integrate(np.repeat(cell[None], len(t), axis=0), later, np.zeros(len(t), int))
+        grid.flush()
         assert grid.probabilities()[10, 10, 10] == pytest.approx(1 / (1 + C * C), abs=1e-12)
 
 
@@ -646,6 +698,7 @@ def test_repeated_lifts_at_one_place_are_one_visit_and_another_finger_is_another
     path = cell + np.outer(np.sin(np.pi * phase), above - cell)
     grid = OccupancyGrid()
     grid.integrate(path, times, np.zeros(len(times), int))
+    grid.flush()
     assert grid.hits[20, 30, 40] >= 9
     assert grid.probabilities()[20, 30, 40] == pytest.approx(1 / (1 + C), abs=1e-12)
     assert grid.probabilities().max() < 0.7      # nothing passes, in the air or on the spot
@@ -654,7 +707,8 @@ def test_repeated_lifts_at_one_place_are_one_visit_and_another_finger_is_another
     paper.integrate(path, times, np.zeros(len(times), int))
     assert paper.probabilities()[20, 30, 40] > 0.9 and (paper.probabilities() > 0.8).sum() > 1
     # another finger touching the spot is independent evidence
-    grid.integrate(cell[None], np.array([1.0]), np.array([1]))
+    grid.integrate(cell[None], np.array([3.0]), np.array([1]))
+    grid.flush()
     assert grid.probabilities()[20, 30, 40] == pytest.approx(1 / (1 + C * C), abs=1e-12)
 
 

@@ -422,3 +422,42 @@ def test_a_silent_finger_stream_stops_holding_the_others_back():
     assert reg.drain(now=0.2)[1].size == 2     # held at index's last stamp (0.0)
     assert reg.drain(now=0.7)[1].size == 49    # index silent for 0.7 s > max_pending
     assert balanced(reg.stats)
+
+
+def test_an_expected_finger_not_heard_yet_holds_the_object_history_at_start_up():
+    """A fast replay can deliver seconds of object poses and of some fingers before the
+    first message of another finger. That finger's first seconds still register: its
+    object poses are kept until it is heard, for max_pending seconds from the first data;
+    without knowing it is expected, they are trimmed and its points dropped."""
+    identity = [0.0, 0.0, 0.0, 1.0]
+    results = {}
+    for expected in ((), (1, 2)):
+        reg = Registrar(max_pending=2.0, fingers=expected)
+        assert reg.drain(now=0.0)[1].size == 0     # the node drains before data comes
+        # 20 s of object poses in one batch, before any fingertip (the buffer makes room
+        # on the way, which trims what it thinks nobody needs)
+        for k in range(2001):
+            reg.add_object_pose(k * 0.01, [0.0, 0.0, 0.0], identity)
+        times = np.arange(2000) * 0.01
+        reg.add_fingertips(times, np.zeros((2000, 3)), 1, now=0.1)
+        first = reg.drain(now=0.1)[1].size
+        reg.add_fingertips(times, np.zeros((2000, 3)), 2, now=0.15)    # finger 2, late
+        second = reg.drain(now=0.15)[1].size
+        results[expected] = (first, second, reg.stats.dropped_gap)
+        assert balanced(reg.stats)
+    assert results[(1, 2)] == (0, 4000, 0)
+    first, second, dropped = results[()]
+    assert dropped > 1000               # not expected: trimmed on the way, points lost
+    # A finger that is expected but never tracked holds things up for max_pending only.
+    reg = Registrar(max_pending=0.5, fingers=(1, 2))
+    for k in range(101):
+        reg.add_object_pose(k * 0.01, [0.0, 0.0, 0.0], identity)
+    reg.add_fingertips(np.arange(50) * 0.01, np.zeros((50, 3)), 1, now=0.0)
+    assert reg.drain(now=0.1)[1].size == 0
+    assert reg.drain(now=0.7)[1].size == 50
+    # Without a clock (build_map, a bag read in time order) nothing is held for it.
+    reg = Registrar(fingers=(1, 2))
+    for k in range(101):
+        reg.add_object_pose(k * 0.01, [0.0, 0.0, 0.0], identity)
+    reg.add_fingertips(np.arange(50) * 0.01, np.zeros((50, 3)), 1)
+    assert reg.drain()[1].size == 50

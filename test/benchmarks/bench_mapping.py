@@ -324,10 +324,11 @@ def occupied_threshold() -> float:
 def full_grid():
     """A 70^3 grid with every cell touched: one measurement at each cell centre (times
     100-160 s), a second one on half the cells (a checkerboard: above the 0.8 threshold)
-    and a third on the cells with ix < 10, so intensities and hit counts vary."""
-    from inhand_mapping.occupancy import OccupancyGrid
+    and a third on the cells with ix < 10, so intensities and hit counts vary. Every sample
+    is one full measurement (no dwell or visits: these samples are no fingertip's path)."""
+    from inhand_mapping.occupancy import OccupancyGrid, SensorModel
 
-    grid = OccupancyGrid()
+    grid = OccupancyGrid(model=SensorModel(evidence_rate=0.0, visit_gap=0.0))
     ijk = np.argwhere(np.ones(grid.spec.shape, dtype=bool))
     centres = grid.spec.cell_centres(ijk)
     grid.integrate(centres, np.linspace(100.0, 160.0, len(ijk)))

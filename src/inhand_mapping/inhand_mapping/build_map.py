@@ -191,6 +191,7 @@ def build(bag: Path, registration_values: dict, occupancy_values: dict,
     registration = BagRegistration(bag, registration_values, progress)
     for points, times, fingers in registration:
         grid.integrate(points, times, fingers)
+    grid.flush()   # the samples held back for their dwell weights: the bag has ended
     return {'grid': grid, 'registrar': registration.registrar, 'report': registration.report}
 
 

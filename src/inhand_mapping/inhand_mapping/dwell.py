@@ -16,28 +16,68 @@ at 240 Hz one sample counts 1/16; a sample taken while the finger moves ten time
 than it needs to cross a cell in one period counts 1/10. The same motion therefore gives
 the same evidence at any tracker rate.
 
-The speed is measured over one period (the displacement from the finger's sample one
-period earlier): over a single 240 Hz step, 1 mm of tracker noise would look like 0.3 m/s.
-A finger with no sample one to two periods back (the first samples, or after a gap) has
-no speed yet and is not limited by it.
+The speed is measured over one period (over a single 240 Hz step, 1 mm of tracker noise
+would look like 0.3 m/s), both ways: from the finger's sample one period earlier to this
+one, and from this one to the finger's sample one period later, and the faster counts. A
+sample taken just after the finger lifted off the surface, or just before it touches down,
+is in the air between a slow part and a fast part of the motion; looking back only, the
+first sample of a lift-off would still see the slow slide before it and count fully. A
+direction with no sample one to two periods away (the start, the end, a gap) gives no
+speed.
 
-Plain numpy; the per-finger tail of the last two periods is kept between calls, so the
-weights do not depend on how the stream is cut into batches.
+Looking ahead means a sample can only be weighed once the finger's next period has arrived:
+``push`` holds each finger's newest samples back and returns the ones whose weights are
+settled, in the order they were pushed; ``flush`` releases the rest at the end of a stream.
+A finger's sample is settled when that finger has a sample one period later, or when any
+finger is more than two periods past it (the stream is in time order, so nothing that
+could still arrive would be close enough to count). The result does not depend on how the
+stream is cut into pushes. Plain numpy.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-__all__ = ['DwellWeights']
+__all__ = ['DwellWeights', 'WeightedSamples']
+
+
+class WeightedSamples(NamedTuple):
+    """Samples released by ``DwellWeights`` with their weights, in the order pushed."""
+
+    points: np.ndarray   # (N, 3)
+    times: np.ndarray    # (N,)
+    fingers: np.ndarray  # (N,) int64
+    weights: np.ndarray  # (N,) in [0, 1]
+
+    @classmethod
+    def empty(cls) -> 'WeightedSamples':
+        return cls(np.empty((0, 3)), np.empty(0), np.empty(0, np.int64), np.empty(0))
+
+    @property
+    def count(self) -> int:
+        return len(self.times)
+
+    def part(self, index) -> 'WeightedSamples':
+        return WeightedSamples(*(field[index] for field in self))
+
+    @classmethod
+    def joined(cls, parts) -> 'WeightedSamples':
+        parts = [part for part in parts if part.count]
+        if not parts:
+            return cls.empty()
+        return cls(*(np.concatenate(fields) for fields in zip(*parts)))
 
 
 class DwellWeights:
     """Weight in [0, 1] of each fingertip sample (see the module docstring).
 
-    ``period`` (s) is the time worth one measurement; ``cell`` (m) the cell edge.
-    Samples of a finger are expected in time order; a finger whose time goes back by more
-    than a period (a bag replayed in a loop, a reset) starts afresh.
+    ``period`` (s) is the time worth one measurement; ``cell`` (m) the cell edge. Samples
+    are expected in time order; a time going back by more than a period (a bag replayed in
+    a loop, a reset) ends the stream: what is held back is released as at its end, and the
+    new stream starts afresh. Samples with a non-finite time or position are passed on with
+    weight 1 (the map rejects them) and are no finger's neighbours.
     """
 
     def __init__(self, period: float, cell: float):
@@ -45,48 +85,120 @@ class DwellWeights:
             raise ValueError(f'period {period} s and cell {cell} m must be positive')
         self.period = float(period)
         self.cell = float(cell)
-        self._tails: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # Stamps near 1.7e9 s carry ~0.2 us of rounding: "one period later" allows for it.
+        self._slack = 1e-3 * self.period
+        self.reset()
 
     def reset(self) -> None:
-        self._tails.clear()
+        """Forget everything, including the samples held back."""
+        self._held = WeightedSamples.empty()
+        self._usable = np.empty(0, dtype=bool)
+        # Per finger: the newest released samples (times, points), two periods' worth, as
+        # the earlier neighbours of the samples still held back.
+        self._history: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._latest = -np.inf   # newest usable time pushed
 
-    def weights(self, points, times, fingers) -> np.ndarray:
+    @property
+    def pending(self) -> int:
+        """Samples held back until their finger's next period arrives."""
+        return self._held.count
+
+    def push(self, points, times, fingers) -> WeightedSamples:
+        """Take samples (in time order); return those whose weights are now settled."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         times = np.asarray(times, dtype=np.float64).reshape(-1)
-        fingers = np.asarray(fingers).reshape(-1)
-        out = np.ones(len(times))
+        fingers = np.asarray(fingers).reshape(-1).astype(np.int64)
         usable = np.isfinite(times) & np.all(np.isfinite(points), axis=1)
-        for finger in np.unique(fingers[usable]):
-            index = np.flatnonzero(usable & (fingers == finger))
-            index = index[np.argsort(times[index], kind='stable')]
-            out[index] = self._finger_weights(int(finger), points[index], times[index])
+        released = []
+        while len(times):
+            # Newest usable time before each sample; a time falling back more than a period
+            # below it starts a new stream there.
+            newest = np.maximum.accumulate(np.where(usable, times, -np.inf))
+            before = np.maximum(self._latest, np.concatenate([[-np.inf], newest[:-1]]))
+            restart = np.flatnonzero(usable & (times < before - self.period))
+            cut = restart[0] if len(restart) else len(times)
+            self._hold(points[:cut], times[:cut], fingers[:cut], usable[:cut])
+            if cut == len(times):
+                released.append(self._release(everything=False))
+                break
+            released.append(self._release(everything=True))
+            self.reset()
+            points, times, fingers, usable = points[cut:], times[cut:], fingers[cut:], usable[cut:]
+        return WeightedSamples.joined(released)
+
+    def flush(self) -> WeightedSamples:
+        """Release every sample held back (the end of the stream)."""
+        return self._release(everything=True)
+
+    # ------------------------------------------------------------------ internals
+    def _hold(self, points, times, fingers, usable) -> None:
+        self._held = WeightedSamples.joined(
+            [self._held, WeightedSamples(points, times, fingers, np.ones(len(times)))])
+        self._usable = np.concatenate([self._usable, usable])
+        if usable.any():
+            self._latest = max(self._latest, float(times[usable].max()))
+
+    def _release(self, everything: bool) -> WeightedSamples:
+        held, usable = self._held, self._usable
+        count = held.count if everything else self._settled_prefix()
+        if count == 0:
+            return WeightedSamples.empty()
+        weights = held.weights.copy()
+        for finger in np.unique(held.fingers[:count][usable[:count]]):
+            mine = np.flatnonzero(usable & (held.fingers == finger))
+            weights[mine] = self._finger_weights(int(finger), held.times[mine],
+                                                 held.points[mine], mine < count)
+        out = WeightedSamples(held.points[:count], held.times[:count], held.fingers[:count],
+                              weights[:count])
+        self._held = held.part(slice(count, None))
+        self._usable = usable[count:]
         return out
 
-    def _finger_weights(self, finger: int, points: np.ndarray, times: np.ndarray):
-        period = self.period
-        tail_t, tail_p = self._tails.get(finger, (np.empty(0), np.empty((0, 3))))
-        if len(tail_t) and times[0] < tail_t[-1] - period:
-            tail_t, tail_p = np.empty(0), np.empty((0, 3))   # time went back: start afresh
-        all_t = np.concatenate([tail_t, times])
-        all_p = np.concatenate([tail_p, points])
-        k = len(tail_t) + np.arange(len(times))              # this batch within all_*
-        dt = np.full(len(times), period)
+    def _settled_prefix(self) -> int:
+        """How many held samples, from the oldest, have every neighbour that can count."""
+        held, usable, period = self._held, self._usable, self.period
+        settled = ~usable | (held.times + 2.0 * period + self._slack < self._latest)
+        for finger in np.unique(held.fingers[usable]):
+            mine = usable & (held.fingers == finger)
+            newest = held.times[mine].max()
+            settled |= mine & (held.times + period - self._slack <= newest)
+        return len(settled) if settled.all() else int(np.argmin(settled))
+
+    def _finger_weights(self, finger: int, times, points, releasing) -> np.ndarray:
+        """Weights of one finger's held samples (those ``releasing`` are final; the others
+        are recomputed when they are released), its history updated."""
+        period, slack = self.period, self._slack
+        history_t, history_p = self._history.get(finger, (np.empty(0), np.empty((0, 3))))
+        all_t = np.concatenate([history_t, times])
+        all_p = np.concatenate([history_p, points])
+        order = np.argsort(all_t, kind='stable')
+        all_t, all_p = all_t[order], all_p[order]
+        k = np.argsort(order, kind='stable')[len(history_t):]   # held samples in all_*
+        dt = np.full(len(k), period)
         has_previous = k > 0
         dt[has_previous] = np.clip(all_t[k[has_previous]] - all_t[k[has_previous] - 1],
                                    0.0, period)
-        # The finger's sample one period back (at most two periods back) gives its speed.
-        # (A little slack: stamps near 1.7e9 s carry ~0.2 us of rounding.)
-        slack = 1e-3 * period
-        back = np.searchsorted(all_t, all_t[k] - period + slack, side='right') - 1
-        found = back >= 0
-        baseline = np.where(found, all_t[k] - all_t[np.maximum(back, 0)], np.inf)
-        found &= baseline <= 2.0 * period + slack
-        crossing = np.full(len(times), np.inf)
-        if found.any():
-            moved = np.linalg.norm(all_p[k[found]] - all_p[back[found]], axis=1)
-            speed = moved / baseline[found]
-            with np.errstate(divide='ignore'):
-                crossing[found] = np.where(speed > 0, self.cell / speed, np.inf)
-        keep = all_t >= all_t[-1] - 2.0 * period - slack
-        self._tails[finger] = (all_t[keep], all_p[keep])
+        earlier = np.searchsorted(all_t, all_t[k] - period + slack, side='right') - 1
+        later = np.searchsorted(all_t, all_t[k] + period - slack, side='left')
+        speed = np.maximum(self._speed(all_t, all_p, k, earlier),
+                           self._speed(all_t, all_p, k, later))
+        with np.errstate(divide='ignore'):
+            crossing = np.where(speed > 0, self.cell / speed, np.inf)
+        released_t, released_p = np.concatenate([history_t, times[releasing]]), \
+            np.concatenate([history_p, points[releasing]])
+        if len(released_t):
+            keep = released_t >= released_t.max() - 2.0 * period - slack
+            self._history[finger] = (released_t[keep], released_p[keep])
         return np.minimum(dt, crossing) / period
+
+    def _speed(self, all_t, all_p, k, other) -> np.ndarray:
+        """Speed between samples ``k`` and ``other`` (indices into all_*), 0 where ``other``
+        is missing or more than two periods away."""
+        speed = np.zeros(len(k))
+        inside = (other >= 0) & (other < len(all_t))
+        other = np.clip(other, 0, len(all_t) - 1)
+        baseline = np.abs(all_t[other] - all_t[k])
+        found = inside & (baseline <= 2.0 * self.period + self._slack) & (baseline > 0)
+        speed[found] = (np.linalg.norm(all_p[other[found]] - all_p[k[found]], axis=1)
+                        / baseline[found])
+        return speed

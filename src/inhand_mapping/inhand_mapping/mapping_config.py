@@ -100,7 +100,8 @@ def check_occupancy(values: Mapping[str, Any]) -> None:
 
 def make_registrar(values: Mapping[str, Any]) -> Registrar:
     check_registration(values)
-    return Registrar(values['mode'], values['max_gap'], values['max_pending'])
+    return Registrar(values['mode'], values['max_gap'], values['max_pending'],
+                     fingers=range(len(values['finger_names'])))
 
 
 def make_grid(values: Mapping[str, Any]) -> OccupancyGrid:

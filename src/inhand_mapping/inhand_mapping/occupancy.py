@@ -24,8 +24,9 @@ independent ones give 0.83 (over 0.8).
 
 * **dwell** (dwell.py): a sample counts for the time the fingertip spent where it was
   sampled, in units of ``1 / evidence_rate`` (15 Hz: the paper's rate), so the same motion
-  gives the same evidence at 15 or 240 Hz and a finger flying past between strokes counts
-  for little;
+  gives the same evidence at 15 or 240 Hz and a finger flying past between strokes, or
+  lifting off the surface, counts for little. The speed looks one period ahead, so each
+  finger's newest samples wait for the next period (``pending``; ``flush()`` at the end);
 * **visits**: samples of one finger in one cell less than ``visit_gap`` apart are one
   visit, and a visit gives at most one measurement's worth. A fingertip resting on a
   spot, or lifting off it again and again (the paper's repeated off-surface movements),
@@ -38,7 +39,8 @@ paper). Without times (``integrate(points)``) there is neither dwell nor visits.
 The update can touch the containing cell only (the paper) or, optionally, its 26
 neighbours as well, each with eq. 3 at its own distance. Samples are applied one by one in
 the order given (a compiled loop, occupancy_kernels.py), and the dwell and visit state is
-kept between calls, so the map does not depend on how the stream was cut into batches.
+kept between calls, so the map (once flushed) does not depend on how the stream was cut
+into batches.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from inhand_mapping import occupancy_kernels as kernels
-from inhand_mapping.dwell import DwellWeights
+from inhand_mapping.dwell import DwellWeights, WeightedSamples
 
 __all__ = ['DISTANCES', 'GridSpec', 'SensorModel', 'OccupancyGrid', 'IntegrationCounts',
            'logit', 'probability']
@@ -136,6 +138,10 @@ class IntegrationCounts:
     outside: int = 0
     invalid: int = 0
 
+    def __add__(self, other: 'IntegrationCounts') -> 'IntegrationCounts':
+        return IntegrationCounts(self.integrated + other.integrated,
+                                 self.outside + other.outside, self.invalid + other.invalid)
+
 
 class OccupancyGrid:
     """Log-odds occupancy per cell, plus hit count and first-touch time per cell."""
@@ -166,27 +172,52 @@ class OccupancyGrid:
         ``times`` (seconds, one per point) feed the first-touch time, the dwell weights and
         the visits; ``fingers`` (non-negative integers, one per point; default all 0) say
         whose fingertip each point is. Points outside the workspace are counted and
-        ignored; NaN or infinite ones are rejected and counted. Returns this batch's counts.
+        ignored; NaN or infinite ones are rejected and counted.
+
+        A timed sample's weight depends on where its finger is one period later (dwell.py),
+        so each finger's newest samples (up to two periods) are held back and applied by a
+        later call, or by ``flush()`` at the end of a stream; ``pending`` says how many.
+        Returns the counts of the samples this call applied.
         """
         points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         count = points.shape[0]
-        has_times = times is not None
-        if has_times:
+        if times is not None:
             times = np.ascontiguousarray(times, dtype=np.float64).reshape(-1)
             if times.shape[0] != count:
                 raise ValueError(f'{count} points but {times.shape[0]} times')
-        else:
-            times = np.empty(0)
         fingers = self._finger_ids(fingers, count)
+        if times is None:
+            # No times, no dwell: applied at once, after what is held back (order kept).
+            held = self.flush()
+            return held + self._apply(WeightedSamples(points, np.empty(0), fingers,
+                                                      np.ones(count)), has_times=False)
+        if self._dwell is None:
+            return self._apply(WeightedSamples(points, times, fingers, np.ones(count)))
+        return self._apply(self._dwell.push(points, times, fingers))
+
+    def flush(self) -> IntegrationCounts:
+        """Apply the samples held back for their dwell weights (the end of a stream: a bag
+        replayed, a map about to be saved). Returns their counts."""
+        if self._dwell is None:
+            return IntegrationCounts()
+        return self._apply(self._dwell.flush())
+
+    @property
+    def pending(self) -> int:
+        """Samples given to ``integrate`` and not applied yet (see there)."""
+        return 0 if self._dwell is None else self._dwell.pending
+
+    def _apply(self, samples: WeightedSamples, has_times: bool = True) -> IntegrationCounts:
+        points, times, fingers, weights = samples
+        count = points.shape[0]
         spec, model = self.spec, self.model
-        weights = np.ones(count)
-        if has_times and self._dwell is not None:
-            weights = self._dwell.weights(points, times, fingers)
         # Visits need times; without them the kernel never reads the (then empty) state.
         visit_last, visit_weight = self._visit_state(
             int(fingers.max()) + 1 if has_times and count else 0)
         integrated, outside, invalid, earliest = kernels.integrate(
-            points, times, has_times, fingers, weights, spec.origin, 1.0 / spec.resolution,
+            np.ascontiguousarray(points), np.ascontiguousarray(times), has_times,
+            np.ascontiguousarray(fingers, dtype=np.int64), np.ascontiguousarray(weights),
+            spec.origin, 1.0 / spec.resolution,
             spec.cells_per_axis, spec.resolution ** 2 / (2.0 * model.sigma ** 2), self._log_c,
             1 if model.neighbourhood == 27 else 0, 1 if model.distance_to == 'cell' else 0,
             model.visit_gap, visit_last, visit_weight, self.log_odds.reshape(-1),
@@ -196,9 +227,7 @@ class OccupancyGrid:
         self.earliest_touch = min(self.earliest_touch, float(earliest))
         batch = IntegrationCounts(integrated=int(integrated), outside=int(outside),
                                   invalid=int(invalid))
-        self.counts.integrated += batch.integrated
-        self.counts.outside += batch.outside
-        self.counts.invalid += batch.invalid
+        self.counts = self.counts + batch
         return batch
 
     @staticmethod
@@ -234,7 +263,7 @@ class OccupancyGrid:
         self._visit_last.fill(-np.inf)
         self._visit_weight.fill(0.0)
         if self._dwell is not None:
-            self._dwell.reset()
+            self._dwell.reset()   # the samples held back go too
 
     # ------------------------------------------------------------------ queries
     def probabilities(self) -> np.ndarray:

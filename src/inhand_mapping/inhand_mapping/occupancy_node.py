@@ -13,6 +13,11 @@ gets the latest map):
 Services (std_srvs/Trigger): ``occupancy/reset`` clears the map; ``occupancy/save``
 writes ``<output_dir>/<map_name>.npz`` (whole grid) and ``.ply`` (occupied cells)
 atomically and answers with the paths.
+
+The map holds each finger's newest samples back until the next 1/15 s shows how fast the
+finger was moving (dwell.py). They are applied when the next points come, before a save,
+and when no points have come for two publish periods (the end of a replay, a pause), so
+the map published after a stream ends holds all of it.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ class OccupancyNode(Node):
         self.grid = make_grid(self.values)
         self.products = MapProducts(self.grid, self.values['occupied_threshold'])
         self._changed = False
+        self._idle_ticks = 0   # publish periods since points last came
         self._latest_stamp = None
         self.create_subscription(PointCloud2, 'registration/points', self._on_points, POINTS_QOS)
         self._cloud = self.create_publisher(PointCloud2, 'occupancy/cloud', MAP_QOS)
@@ -62,6 +68,7 @@ class OccupancyNode(Node):
 
     def _on_points(self, msg: PointCloud2) -> None:
         points, times, fingers = unpack_registered(from_point_cloud2(msg))
+        self._idle_ticks = 0
         if len(points):
             self.grid.integrate(points, times, fingers)
             self._changed = True
@@ -69,6 +76,10 @@ class OccupancyNode(Node):
             self._latest_stamp = msg.header.stamp
 
     def _publish(self) -> None:
+        self._idle_ticks += 1
+        if self._idle_ticks >= 2 and self.grid.pending:
+            self.grid.flush()
+            self._changed = True
         if not self._changed:
             return
         self._changed = False
@@ -95,6 +106,9 @@ class OccupancyNode(Node):
         return response
 
     def _on_save(self, _request, response):
+        if self.grid.pending:
+            self.grid.flush()
+            self._changed = True
         try:
             paths = save_map(self.grid, Path(self.values['output_dir']), self.values['map_name'],
                              self.values['occupied_threshold'], MAP_FRAME,

@@ -47,7 +47,11 @@ monotonic clock; the node does, ``build_map`` does not need to): a fingertip tha
 waited ``max_pending`` seconds for an object pose is dropped (``dropped_gap``, or
 ``dropped_before_object`` while no object pose has arrived at all), so an unplugged object
 sensor cannot make the buffer grow without end; and a finger stream that has been silent
-for ``max_pending`` seconds no longer holds the watermark back.
+for ``max_pending`` seconds no longer holds the watermark back. A finger stream the caller
+expects (``fingers``) that has not delivered anything yet holds the watermark at its start,
+for ``max_pending`` seconds from the first data: otherwise, when a fast replay's first
+finger messages come after seconds of object poses, those poses would already be trimmed
+and the fingers' first seconds dropped.
 
 Every fingertip received ends up in exactly one counter::
 
@@ -105,13 +109,14 @@ class Registrar:
     Feed it with :meth:`add_object_pose` and :meth:`add_fingertips` in any interleaving
     (each stream in its own time order; fingertips may come before the object poses they
     need); :meth:`drain` returns what can be registered so far, in time order, and
-    :meth:`finish` ends the input. ``max_pending`` is in seconds of the ``now`` clock.
+    :meth:`finish` ends the input. ``max_pending`` is in seconds of the ``now`` clock;
+    ``fingers`` are the finger ids whose streams are expected (used with a clock only).
     Times are float seconds (``sec + nanosec * 1e-9``); at epoch scale a float64 resolves
     about 0.24 microseconds, far below the tracker period.
     """
 
     def __init__(self, mode: str = 'tracked', max_gap: float = 0.05,
-                 max_pending: float = 1.0):
+                 max_pending: float = 1.0, fingers=()):
         if mode not in MODES:
             raise ValueError(f"registration mode must be one of {MODES}, got {mode!r}")
         for name, value in (('max_gap', max_gap), ('max_pending', max_pending)):
@@ -137,6 +142,11 @@ class Registrar:
         self._pending_min_t = math.inf
         # Per finger stream: [newest stamp, arrival (now) of it or nan].
         self._streams: dict[int, list[float]] = {}
+        # Finger streams expected but not heard from yet, and the clock (now) when the
+        # first data of any kind was drained: see _watermark.
+        self._unheard = {int(finger) for finger in fingers}
+        self._data_since = math.nan
+        self._clock: float | None = None   # the newest `now` given, for trims between drains
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -216,12 +226,15 @@ class Registrar:
         else:
             times = times.copy()  # decouple from the caller's (possibly broadcast) arrays
             pos = pos.copy()
+        if now is not None:
+            self._clock = float(now)
         arrival = np.full(times.size, math.nan if now is None else float(now))
         self._chunks.append((times, pos, fing, arrival))
         self._n_pending += times.size
         self._pending_min_t = min(self._pending_min_t, float(times.min()))
         for finger in np.unique(fing).tolist():
             newest = float(times[fing == finger].max())
+            self._unheard.discard(finger)
             stream = self._streams.setdefault(finger, [-math.inf, math.nan])
             if newest >= stream[0]:
                 stream[0] = newest
@@ -271,6 +284,14 @@ class Registrar:
 
     def _watermark(self, now: float | None) -> float:
         """Oldest newest-stamp of the finger streams still delivering (see the module doc)."""
+        if (now is not None and self._unheard
+                and not now - self._data_since > self.max_pending):
+            # An expected finger whose first points have not come yet: they may be older
+            # than anything released so far (at start-up a fast replay delivers its topics
+            # unevenly), and the object poses they need must stay. Held for max_pending
+            # seconds from the first data; a finger that is not tracked at all then stops
+            # holding everything back.
+            return -math.inf
         newest = [stamp for stamp, arrival in self._streams.values()
                   if now is None or math.isnan(arrival) or now - arrival <= self.max_pending]
         return min(newest) if newest else math.inf
@@ -284,6 +305,10 @@ class Registrar:
 
     def _resolve(self, final: bool, now: float | None):
         t, p, f, a = self._take_pending()
+        if now is not None:
+            self._clock = float(now)
+            if math.isnan(self._data_since) and (t.size or self._n_obj):
+                self._data_since = float(now)
         held = (t[:0], p[:0], f[:0], a[:0])
         if not final and t.size:
             # Only up to the watermark: a later point may still be preceded by another's.
@@ -428,7 +453,9 @@ class Registrar:
             self._resize(max(1024, 2 * keep))
 
     def _make_room(self) -> None:
-        self._trim_history()
+        # Object poses come without a clock; the last one given decides what is stale (an
+        # expected finger not heard yet keeps the poses its first points will need).
+        self._trim_history(self._clock)
         if self._n_obj > 3 * len(self._obj_t) // 4:
             self._resize(2 * len(self._obj_t))
 

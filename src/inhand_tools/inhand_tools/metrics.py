@@ -33,11 +33,15 @@ Definitions (metres inside, millimetres in the reported ``*_mm`` values)
 * **Normal offset** = mean over ``A`` of ``(a - s) . n_s``, ``s`` the nearest sample: > 0 when
   the map sits outside the surface (a fingertip sensor above the contact would do that).
 * **Stray cells** = occupied cells that hold (the same cell, no tolerance) a true stray
-  point farther than ``stray_surface_distance`` (5 mm) from the surface and hold no surface
-  sample (not in ``G``): a cell holding surface is right to be occupied whatever else passed
-  through it. The simulator's off-surface samples start 6 mm from the surface, so a stray's
-  neighbouring cell is often a surface cell. An occupied cell merely next to a stray's
-  cell is not a stray cell (the off-surface cells count it if it is more than a cell off).
+  point farther than ``stray_surface_distance`` (5 mm) from the surface and that the
+  surface does not reach: no surface sample in the cell grown by ``surface_margin`` (1 mm,
+  the tracker's noise) on every side. A cell the surface passes through, or grazes within
+  the noise of the contacts, is right to be occupied whatever else passed through it (a
+  cell whose corner the surface misses by 0.2 mm fills with noisy contacts like its
+  neighbours). The simulator's off-surface samples start 6 mm from the surface, so a
+  stray's neighbouring cell is often a surface cell. An occupied cell merely next to a
+  stray's cell is not a stray cell (the off-surface cells count it if it is more than a
+  cell off).
   **Off-surface cells** = occupied cells not within tolerance of ``G`` (``|A|`` minus the
   correct ones), whatever put them there.
 * Registered raw points (:func:`point_metrics`): the same distances with the points in place
@@ -188,7 +192,8 @@ def _nearest_distances(targets: np.ndarray, queries: np.ndarray) -> np.ndarray:
 def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
                 threshold: float = 0.8, tolerance_cells: int = 1,
                 fscore_distance: float = 0.005,
-                stray_surface_distance: float = 0.005) -> dict:
+                stray_surface_distance: float = 0.005,
+                surface_margin: float = 0.001) -> dict:
     """The metrics of the module docstring for the cells above ``threshold``.
 
     ``centres`` (n, 3) and ``probabilities`` (n,) may hold every touched cell; only those
@@ -237,14 +242,19 @@ def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
         com_error = float(np.linalg.norm(com_map - com_truth))
 
     # Strays: true off-surface fingertip positions, and the occupied cells that hold one
-    # but no surface sample (a cell holding surface is right to be occupied).
+    # but that the surface does not reach (a cell holding surface is right to be occupied).
     far_strays = np.empty((0, 3))
     if len(truth.strays):
         far_strays = truth.strays[truth.distance(truth.strays)[0] > stray_surface_distance]
     stray_cells = 0
     if len(far_strays) and len(occupied):
-        stray_keys = np.setdiff1d(_keys(cell_indices(far_strays, lattice)), surface_keys)
-        stray_cells = int(np.count_nonzero(np.isin(occupied_keys, stray_keys)))
+        holding = occupied_cells[np.isin(occupied_keys,
+                                         _keys(cell_indices(far_strays, lattice)))]
+        centres_holding = np.asarray(lattice.origin) + (holding + 0.5) * lattice.resolution
+        # Chebyshev distance to the nearest surface sample: inside the grown cell or not.
+        reach = truth.tree.query(centres_holding, k=1, p=np.inf)[0] if len(holding) \
+            else np.empty(0)
+        stray_cells = int(np.count_nonzero(reach > lattice.resolution / 2 + surface_margin))
 
     mm = 1000.0
     return {
@@ -274,6 +284,7 @@ def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
         'strays_far_from_surface': int(len(far_strays)),
         'strays': int(len(truth.strays)),
         'fscore_distance_mm': fscore_distance * mm,
+        'surface_margin_mm': surface_margin * mm,
         'tolerance_cells': int(tolerance_cells),
         'explored_radius_mm': truth.explored_radius * mm,
         'explored_samples': int(len(explored)),
