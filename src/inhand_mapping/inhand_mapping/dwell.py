@@ -70,6 +70,12 @@ class WeightedSamples(NamedTuple):
         return cls(*(np.concatenate(fields) for fields in zip(*parts)))
 
 
+def _usable(points, times) -> np.ndarray:
+    """Samples with a finite time and position: the only ones that are a finger's
+    neighbours."""
+    return np.isfinite(times) & np.all(np.isfinite(points), axis=1)
+
+
 class DwellWeights:
     """Weight in [0, 1] of each fingertip sample (see the module docstring).
 
@@ -92,7 +98,6 @@ class DwellWeights:
     def reset(self) -> None:
         """Forget everything, including the samples held back."""
         self._held = WeightedSamples.empty()
-        self._usable = np.empty(0, dtype=bool)
         # Per finger: the newest released samples (times, points), two periods' worth, as
         # the earlier neighbours of the samples still held back.
         self._history: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -108,7 +113,7 @@ class DwellWeights:
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         times = np.asarray(times, dtype=np.float64).reshape(-1)
         fingers = np.asarray(fingers).reshape(-1).astype(np.int64)
-        usable = np.isfinite(times) & np.all(np.isfinite(points), axis=1)
+        usable = _usable(points, times)
         released = []
         while len(times):
             # Newest usable time before each sample; a time falling back more than a period
@@ -117,7 +122,7 @@ class DwellWeights:
             before = np.maximum(self._latest, np.concatenate([[-np.inf], newest[:-1]]))
             restart = np.flatnonzero(usable & (times < before - self.period))
             cut = restart[0] if len(restart) else len(times)
-            self._hold(points[:cut], times[:cut], fingers[:cut], usable[:cut])
+            self._hold(points[:cut], times[:cut], fingers[:cut])
             if cut == len(times):
                 released.append(self._release(everything=False))
                 break
@@ -131,32 +136,32 @@ class DwellWeights:
         return self._release(everything=True)
 
     # ------------------------------------------------------------------ internals
-    def _hold(self, points, times, fingers, usable) -> None:
+    def _hold(self, points, times, fingers) -> None:
+        # Held samples carry weight 1 until released: what unusable ones keep.
         self._held = WeightedSamples.joined(
             [self._held, WeightedSamples(points, times, fingers, np.ones(len(times)))])
-        self._usable = np.concatenate([self._usable, usable])
+        usable = _usable(points, times)
         if usable.any():
             self._latest = max(self._latest, float(times[usable].max()))
 
     def _release(self, everything: bool) -> WeightedSamples:
-        held, usable = self._held, self._usable
-        count = held.count if everything else self._settled_prefix()
+        held = self._held
+        usable = _usable(held.points, held.times)
+        count = held.count if everything else self._settled_prefix(usable)
         if count == 0:
             return WeightedSamples.empty()
-        weights = held.weights.copy()
-        for finger in np.unique(held.fingers[:count][usable[:count]]):
+        out = held.part(slice(None, count))
+        for finger in np.unique(out.fingers[usable[:count]]):
             mine = np.flatnonzero(usable & (held.fingers == finger))
-            weights[mine] = self._finger_weights(int(finger), held.times[mine],
-                                                 held.points[mine], mine < count)
-        out = WeightedSamples(held.points[:count], held.times[:count], held.fingers[:count],
-                              weights[:count])
+            releasing = mine < count
+            out.weights[mine[releasing]] = self._finger_weights(
+                int(finger), held.times[mine], held.points[mine], releasing)
         self._held = held.part(slice(count, None))
-        self._usable = usable[count:]
         return out
 
-    def _settled_prefix(self) -> int:
+    def _settled_prefix(self, usable) -> int:
         """How many held samples, from the oldest, have every neighbour that can count."""
-        held, usable, period = self._held, self._usable, self.period
+        held, period = self._held, self.period
         settled = ~usable | (held.times + 2.0 * period + self._slack < self._latest)
         for finger in np.unique(held.fingers[usable]):
             mine = usable & (held.fingers == finger)
@@ -165,15 +170,15 @@ class DwellWeights:
         return len(settled) if settled.all() else int(np.argmin(settled))
 
     def _finger_weights(self, finger: int, times, points, releasing) -> np.ndarray:
-        """Weights of one finger's held samples (those ``releasing`` are final; the others
-        are recomputed when they are released), its history updated."""
+        """Weights of the ``releasing`` ones of a finger's held samples (the others are their
+        later neighbours); the finger's history updated."""
         period, slack = self.period, self._slack
         history_t, history_p = self._history.get(finger, (np.empty(0), np.empty((0, 3))))
         all_t = np.concatenate([history_t, times])
         all_p = np.concatenate([history_p, points])
         order = np.argsort(all_t, kind='stable')
         all_t, all_p = all_t[order], all_p[order]
-        k = np.argsort(order, kind='stable')[len(history_t):]   # held samples in all_*
+        k = np.argsort(order, kind='stable')[len(history_t):][releasing]  # in all_*
         dt = np.full(len(k), period)
         has_previous = k > 0
         dt[has_previous] = np.clip(all_t[k[has_previous]] - all_t[k[has_previous] - 1],

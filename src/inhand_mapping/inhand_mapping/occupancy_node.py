@@ -77,9 +77,8 @@ class OccupancyNode(Node):
 
     def _publish(self) -> None:
         self._idle_ticks += 1
-        if self._idle_ticks >= 2 and self.grid.pending:
-            self.grid.flush()
-            self._changed = True
+        if self._idle_ticks >= 2:
+            self._apply_held()
         if not self._changed:
             return
         self._changed = False
@@ -105,10 +104,14 @@ class OccupancyNode(Node):
         self.get_logger().info('map cleared')
         return response
 
-    def _on_save(self, _request, response):
+    def _apply_held(self) -> None:
+        """Apply the samples the map holds back for their dwell weights (see the top)."""
         if self.grid.pending:
             self.grid.flush()
             self._changed = True
+
+    def _on_save(self, _request, response):
+        self._apply_held()
         try:
             paths = save_map(self.grid, Path(self.values['output_dir']), self.values['map_name'],
                              self.values['occupied_threshold'], MAP_FRAME,
