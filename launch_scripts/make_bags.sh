@@ -10,6 +10,10 @@ set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$ROOT/launch_scripts/bootstrap.sh"
 SIM="$ROOT/.venv/bin/simulate_session"
+# numpy computes float64 sin/cos/exp with Intel's SVML on AVX-512 machines and with libm
+# elsewhere; the two differ in the last bit, and the bags would differ with the CPU. Keep numpy
+# on its AVX2 (libm) paths everywhere so the bags are the same on every x86_64 machine.
+export NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR"
 cd "$ROOT"
 DIR="${1:-bags}"
 mkdir -p "$DIR"
