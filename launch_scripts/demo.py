@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from replay_bag import WORKSPACE, replay  # noqa: E402
+from replay_bag import WORKSPACE, replay
 
 BAG = WORKSPACE / 'bags' / 'cat_moving'
 

@@ -18,6 +18,9 @@ import sys
 import time
 from pathlib import Path
 
+from inhand_common.bag_source import BagError, BagSource
+from inhand_common.ground_truth import truth_path
+from inhand_common.ros_names import OBJECT_POSE_TOPIC
 from inhand_tools.launching import ProcessGroup, TopicWatch, call_trigger, mapping_graph
 
 WORKSPACE = Path(__file__).resolve().parents[1]
@@ -25,11 +28,10 @@ QUIET = 1.0  # s without registered points after the replay: the graph has caugh
 
 
 def bag_has_object_sensor(bag: Path) -> bool:
-    from rosbags.highlevel import AnyReader
     try:
-        with AnyReader([bag]) as reader:
-            return any(c.topic.lstrip('/') == 'polhemus/object/pose' for c in reader.connections)
-    except Exception:  # let bag_replay report what is wrong with the bag
+        with BagSource(bag) as source:
+            return OBJECT_POSE_TOPIC in source.topics
+    except BagError:  # let bag_replay report what is wrong with the bag
         return True
 
 
@@ -63,7 +65,7 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             return 1
     print(f'[launch] graph stopped after {time.monotonic() - started:.1f} s', flush=True)
     npz = output / f'{name}.npz'
-    truth = bag.parent / f'{bag.name}.truth.npz'
+    truth = truth_path(bag)
     with ProcessGroup() as group:
         if render:
             args = ['render_map', str(npz), '--bag', str(bag), '--output', str(output)]

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from inhand_common.ros_names import station_pose_topic
 from inhand_common.rotations import euler_zyx_to_quaternion, rotate_vectors
 from inhand_mapping.pose_cdr import encode_pose_stamped
 
@@ -75,7 +76,7 @@ def write_pose_bag(path: Path, frames, frame_id: str = 'polhemus_source') -> Pat
     msgtype = 'geometry_msgs/msg/PoseStamped'
     names = list(frames[0][1])
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        connections = {name: writer.add_connection(f'/polhemus/{name}/pose', msgtype,
+        connections = {name: writer.add_connection('/' + station_pose_topic(name), msgtype,
                                                    typestore=store) for name in names}
         for t, frame in frames:
             sec, nanosec = stamp_parts(t)

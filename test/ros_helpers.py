@@ -53,7 +53,8 @@ class Process:
         except subprocess.TimeoutExpired:
             os.killpg(self.popen.pid, signal.SIGKILL)
             self.popen.wait()
-            raise AssertionError(f'{self.popen.args[0]} did not stop on SIGINT:\n{self.output()}')
+            raise AssertionError(
+                f'{self.popen.args[0]} did not stop on SIGINT:\n{self.output()}') from None
 
 
 @contextlib.contextmanager

@@ -166,7 +166,7 @@ def single_topic_bag(path: Path, count: int, rate: float = 240.0) -> Path:
         connection = writer.add_connection('/polhemus/object/pose',
                                            'geometry_msgs/msg/PoseStamped', typestore=store)
         for k in range(count):
-            ns = 1000 * 10**9 + int(round(k * 1e9 / rate))
+            ns = 1000 * 10**9 + round(k * 1e9 / rate)
             writer.write(connection, ns, encode_pose_stamped(
                 ns // 10**9, ns % 10**9, 'polhemus_source',
                 (0.25 + 1e-5 * k, 0.0, 0.05, 0.0, 0.0, 0.0, 1.0)))
@@ -288,7 +288,7 @@ def test_record_a_running_publisher_then_sigint_keeps_every_message(tmp_path):
     for name in names:
         messages = bag[f'polhemus/{name}/pose']
         assert len(messages) == len(frames)
-        for (t, frame), (_, raw) in zip(frames, messages):
+        for (t, frame), (_, raw) in zip(frames, messages, strict=False):
             sec, nanosec, frame_id, pose = decode_pose_stamped(raw)
             assert abs(sec + nanosec * 1e-9 - t) < 1e-6 and frame_id == 'polhemus_source'
             assert np.allclose(pose[:3], frame[name][0])
@@ -513,6 +513,7 @@ def test_tools_stop_on_sigterm_while_waiting(tmp_path):
 def test_echo_text_is_yaml_with_arrays_cut_and_strings_quoted():
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from geometry_msgs.msg import PoseWithCovarianceStamped
+
     from inhand_tools.echo_format import Options, format_message
     diagnostics = DiagnosticArray(status=[DiagnosticStatus(
         level=b'\x01', name='liberty: driver', message="it's ok\n(mostly)",

@@ -8,6 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
+from inhand_common.ros_names import station_pose_topic
 from inhand_mapping.map_io import load_npz, read_ply
 from pose_sessions import FINGERS, sphere_session, write_pose_bag
 from ros_helpers import WORKSPACE, executable_path
@@ -63,12 +64,13 @@ def test_without_registration_the_moving_object_smears(moving_bag, tmp_path):
 def test_sqlite3_bag_gives_the_same_map_as_mcap(tmp_path):
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
+
     from inhand_mapping.pose_cdr import encode_pose_stamped
     frames, _ = sphere_session(seconds=2.0, surface_points=50, moving=True, seed=3)
     mcap = write_pose_bag(tmp_path / 'as_mcap', frames)
     store = get_typestore(Stores.ROS2_JAZZY)
     with Writer(tmp_path / 'as_sqlite', version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
-        connections = {n: w.add_connection(f'/polhemus/{n}/pose', 'geometry_msgs/msg/PoseStamped',
+        connections = {n: w.add_connection('/' + station_pose_topic(n), 'geometry_msgs/msg/PoseStamped',
                                            typestore=store) for n in ('object', *FINGERS)}
         for t, frame in frames:
             ns = int(round(t * 1e9))

@@ -33,12 +33,12 @@ def test_bundled_bags_stay_small():
 def test_bundled_sessions_are_120_s_at_15_hz():
     """All three at the paper's rate and of one length, so their maps compare on equal terms
     (the static and the non-static cat in particular)."""
-    from inhand_sim.session import load_truth
+    from inhand_common.ground_truth import load_truth
     expected = {'cat_static': ('cat', True), 'cat_moving': ('cat', False),
                 'bottle_static': ('bottle', True)}
     for name, (object_name, static) in expected.items():
         truth = load_truth(WORKSPACE / 'bags' / f'{name}.truth.npz')
-        assert (truth['object_name'], truth['static']) == (object_name, static), name
-        assert truth['rate'] == 15.0 and truth['settings']['duration'] == 120.0, name
-        assert len(truth['object_times']) == 120 * 15, name
-    assert load_truth(WORKSPACE / 'bags' / 'cat_moving.truth.npz')['settings']['regrasp']
+        assert (truth.object_name, truth.static) == (object_name, static), name
+        assert truth.rate == 15.0 and truth.settings['duration'] == 120.0, name
+        assert len(truth.object_times) == 120 * 15, name
+    assert load_truth(WORKSPACE / 'bags' / 'cat_moving.truth.npz').settings['regrasp']

@@ -14,8 +14,7 @@ import pytest
 
 from polhemus_liberty import protocol as P
 from polhemus_liberty.device_pose import record_to_pose
-from polhemus_liberty.protocol import (AsciiStreamParser, BinaryStreamParser, OutputList,
-                                       Reply, StationRecord)
+from polhemus_liberty.protocol import AsciiStreamParser, BinaryStreamParser, OutputList, Reply, StationRecord
 
 CRLF = b'\r\n'
 C45 = math.cos(math.radians(45.0))

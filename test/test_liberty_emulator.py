@@ -3,11 +3,17 @@
 import numpy as np
 import pytest
 
+from inhand_common.ros_names import station_pose_topic
 from inhand_common.rotations import quaternion_normalize
 from polhemus_liberty.device_model import LibertyDevice
 from polhemus_liberty.motion import BuiltinMotion, load_plhm_text, load_pose_bag
-from polhemus_liberty.protocol import (CTRL_U, OutputList, AsciiStreamParser, BinaryStreamParser,
-                                       decode_station_map)
+from polhemus_liberty.protocol import (
+    CTRL_U,
+    AsciiStreamParser,
+    BinaryStreamParser,
+    OutputList,
+    decode_station_map,
+)
 
 
 def test_device_power_on_state_and_commands():
@@ -94,7 +100,7 @@ def test_bag_motion_groups_poses_by_stamp(tmp_path):
     Quaternion = store.types['geometry_msgs/msg/Quaternion']
     bag = tmp_path / 'bag'
     with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        connections = {name: writer.add_connection(f'/polhemus/{name}/pose', PoseStamped.__msgtype__,
+        connections = {name: writer.add_connection('/' + station_pose_topic(name), PoseStamped.__msgtype__,
                                                    typestore=store)
                        for name in ('thumb', 'object')}
         for i in range(3):

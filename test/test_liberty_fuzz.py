@@ -10,8 +10,7 @@ import struct
 
 import pytest
 
-from polhemus_liberty.protocol import (AsciiStreamParser, BinaryStreamParser, OutputList,
-                                       Reply, StationRecord)
+from polhemus_liberty.protocol import AsciiStreamParser, BinaryStreamParser, OutputList, Reply, StationRecord
 
 CRLF = b'\r\n'
 LAYOUT = OutputList((8, 9, 2, 7, 1))    # 46-byte records ending in CR LF

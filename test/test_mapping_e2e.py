@@ -21,8 +21,15 @@ from sensor_msgs.msg import PointCloud2
 from inhand_common.point_cloud import from_point_cloud2
 from inhand_mapping.map_io import load_npz, read_ply
 from pose_sessions import sphere_session, write_pose_bag
-from ros_helpers import (WORKSPACE, CloudCounter, MapWatcher, PosePublisher, call_trigger,
-                         executable_path, running)
+from ros_helpers import (
+    WORKSPACE,
+    CloudCounter,
+    MapWatcher,
+    PosePublisher,
+    call_trigger,
+    executable_path,
+    running,
+)
 
 pytestmark = pytest.mark.dds
 

@@ -15,15 +15,21 @@ import cv2
 import numpy as np
 import pytest
 
-from inhand_tools import render
-from inhand_tools.ground_truth import (TRUTH_KEYS, GroundTruth, default_frame, in_frame,
-                                       load_truth, save_truth, truth_path_for_bag)
-from inhand_tools.map_metrics import MapCells, load_map
-from inhand_tools.map_metrics import main as map_metrics_main
-from inhand_tools.metrics import (Lattice, SurfaceTruth, cell_indices, explored_mask,
-                                  infer_lattice, map_metrics, point_metrics)
-from inhand_tools.render_map import default_up, draw_all, map_view_box, raw_view_box, regions
-from inhand_tools.render_map import main as render_map_main
+from inhand_common.ground_truth import (
+    TRUTH_KEYS,
+    GroundTruth,
+    default_frame,
+    in_frame,
+    load_truth,
+    truth_path,
+    write_truth,
+)
+from inhand_tools import drawing as render
+from inhand_tools.commands.map_metrics import main as map_metrics_main
+from inhand_tools.commands.render_map import main as render_map_main
+from inhand_tools.map_cells import Lattice, MapCells, cell_indices, infer_lattice, load_map
+from inhand_tools.map_figures import default_up, draw_all, map_view_box, raw_view_box, regions
+from inhand_tools.map_quality import SurfaceTruth, explored_mask, map_metrics, point_metrics
 from pose_sessions import sphere_session, sphere_surface_points, touched_spot, write_pose_bag
 from ros_helpers import WORKSPACE, executable_path
 
@@ -282,7 +288,7 @@ def test_lattice_inferred_from_centres():
 
 # ------------------------------------------------------------------ truth files
 
-def write_truth(path, surface_centre, contacts, contact_times, poses, static=False,
+def make_truth(path, surface_centre, contacts, contact_times, poses, static=False,
                 strays=None, count=100_000, **overrides):
     surface, normals = fibonacci_sphere(count, RADIUS, surface_centre)
     times = np.array([t for t, _, _ in poses])
@@ -295,16 +301,16 @@ def write_truth(path, surface_centre, contacts, contact_times, poses, static=Fal
                   object_times=times, object_positions=np.array([p for _, p, _ in poses]),
                   object_quaternions=np.array([q for _, _, q in poses]))
     arrays.update(overrides)
-    return save_truth(path, **arrays)
+    return write_truth(path, arrays)
 
 
 def test_truth_file_round_trip_and_tracker_frame(tmp_path):
     quarter = np.array([0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)])  # 90 deg z
     poses = [(0.0, np.array([0.25, 0.0, 0.05]), quarter),
              (1.0, np.array([0.35, 0.0, 0.05]), quarter)]
-    path = write_truth(tmp_path / 'bag.truth.npz', (0.0, 0.0, 0.0), [[0.04, 0.0, 0.0]], [0.5],
+    path = make_truth(tmp_path / 'bag.truth.npz', (0.0, 0.0, 0.0), [[0.04, 0.0, 0.0]], [0.5],
                        poses, strays=(np.array([[0.0, 0.06, 0.0]]), np.array([1.0])))
-    assert truth_path_for_bag(tmp_path / 'bag') == path
+    assert truth_path(tmp_path / 'bag') == path
     truth = load_truth(path)
     assert truth.object_name == 'sphere' and truth.static is False and truth.rate == 240.0
     assert truth.settings == {'radius': RADIUS} and truth.frame == 'object'
@@ -332,14 +338,14 @@ def test_bad_truth_files_are_refused_clearly(tmp_path):
     with pytest.raises(ValueError, match='not a truth file'):
         load_truth(tmp_path / 'text.npz')
     np.savez(tmp_path / 'partial.npz', surface_points=np.zeros((5, 3)), contacts=np.zeros((1, 3)))
-    with pytest.raises(ValueError, match='missing key.*object_name.*stray_points'):
+    with pytest.raises(ValueError, match=r'missing key.*object_name.*stray_points'):
         load_truth(tmp_path / 'partial.npz')
     poses = [(0.0, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))]
-    bad = write_truth(tmp_path / 'bad.npz', (0, 0, 0), np.zeros((3, 2)), np.zeros(3), poses,
+    bad = make_truth(tmp_path / 'bad.npz', (0, 0, 0), np.zeros((3, 2)), np.zeros(3), poses,
                       count=200)
     with pytest.raises(ValueError, match=r"'contacts' has shape \(3, 2\)"):
         load_truth(bad)
-    bad = write_truth(tmp_path / 'bad2.npz', (0, 0, 0), [[0.04, 0, 0]], [0.0, 1.0], poses,
+    bad = make_truth(tmp_path / 'bad2.npz', (0, 0, 0), [[0.04, 0, 0]], [0.0, 1.0], poses,
                       count=200)
     with pytest.raises(ValueError, match='contacts has 1 rows but contact_times has 2'):
         load_truth(bad)
@@ -367,7 +373,7 @@ def session_truth(path, frames, centre, seed, static, strays=None):
             contacts.append(spots[touched_spot(k, f, len(spots))])
             times.append(t)
     poses = [(t, frame['object'][0], frame['object'][1]) for t, frame in frames]
-    return write_truth(path, centre, contacts, times, poses, static=static, strays=strays)
+    return make_truth(path, centre, contacts, times, poses, static=static, strays=strays)
 
 
 @pytest.fixture(scope='module')
@@ -379,7 +385,7 @@ def sessions(tmp_path_factory):
         frames, centre = sphere_session(seconds=5.0, surface_points=SPOTS, moving=moving, seed=1)
         bag = write_pose_bag(root / name, frames)
         strays = (centre + np.array([[0.0, 0.0, -0.07]]), np.array([frames[0][0]]))
-        truth = session_truth(truth_path_for_bag(bag), frames, centre, 1, not moving, strays)
+        truth = session_truth(truth_path(bag), frames, centre, 1, not moving, strays)
         out[name] = {'bag': bag, 'truth': truth, 'map': build_map(bag, config, root, name),
                      'frames': frames, 'centre': centre, 'root': root}
     return out
@@ -432,8 +438,9 @@ def test_map_metrics_static_session_in_the_tracker_frame(sessions, capsys):
 def test_map_metrics_reads_ply_and_a_recorded_cloud_alike(sessions, tmp_path):
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
+
     from inhand_common.point_cloud import serialize_point_cloud2
-    from inhand_mapping.clouds import map_cells
+    from inhand_mapping.cloud_layouts import map_cells
     from inhand_mapping.map_io import load_npz
     s = sessions['moving']
     grid, _ = load_npz(s['map'])

@@ -17,7 +17,6 @@ import json
 import math
 import os
 import pickle
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,8 +30,14 @@ from inhand_mapping import map_io
 from inhand_mapping.dwell import DwellWeights, WeightedSamples
 from inhand_mapping.entropy import cell_entropy, entropy_weights, eq10_entropy, map_entropy
 from inhand_mapping.object_frame import object_frame
-from inhand_mapping.occupancy import (GridSpec, IntegrationCounts, OccupancyGrid,
-                                      SensorModel, logit, probability)
+from inhand_mapping.occupancy import (
+    GridSpec,
+    IntegrationCounts,
+    OccupancyGrid,
+    SensorModel,
+    logit,
+    probability,
+)
 
 RES = 0.005      # default cell size (m)
 SIGMA = 0.002    # default sensor sigma (m)
@@ -551,8 +556,8 @@ def fingertip_stream(seed, count=6000, rate=240.0):
     return points, times, fingers
 
 
-def streamed_grid(points, times, fingers, cuts, model=SensorModel()):
-    grid = OccupancyGrid(GridSpec(0.1, 0.005), model)
+def streamed_grid(points, times, fingers, cuts, model=None):
+    grid = OccupancyGrid(GridSpec(0.1, 0.005), model or SensorModel())
     bounds = [0, *sorted(cuts), len(points)]
     for start, end in zip(bounds[:-1], bounds[1:]):
         grid.integrate(points[start:end], times[start:end], fingers[start:end])

@@ -4,8 +4,7 @@ import math
 
 import pytest
 
-from inhand_common.parameters import (ParameterError, ParamSpec, load_yaml_parameters,
-                                      validate)
+from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
 
 SPECS = [
     ParamSpec('port', '/dev/ttyUSB0', 'serial device'),
@@ -239,3 +238,53 @@ def test_yaml_values_are_validated_with_all_problems(tmp_path):
         '    typo_name: 1\n', encoding='utf-8')
     error = refused(load_yaml_parameters(str(path), 'liberty_driver'))
     assert len(error.problems) == 3
+
+
+# ------------------------------------------------------------------ on a real rclpy node
+
+@pytest.fixture
+def ros_context():
+    import rclpy
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
+def make_node(context, *arguments):
+    from rclpy.node import Node
+    return Node('parameter_test', context=context, cli_args=['--ros-args', *arguments])
+
+
+def test_command_line_overrides_reach_declare_parameters(ros_context):
+    """Pins the rclpy behaviour ros_parameters relies on (values given with -p are readable
+    before they are declared): an rclpy upgrade that moves them fails here, loudly."""
+    from inhand_common.ros_parameters import command_line_overrides, declare_parameters
+    node = make_node(ros_context, '-p', 'latency_s:=0', '-p', 'units:=inch',
+                     '-p', 'stations:=3')
+    try:
+        given = command_line_overrides(node)
+        assert {name: given[name].value for name in ('latency_s', 'units', 'stations')} == \
+            {'latency_s': 0, 'units': 'inch', 'stations': 3}
+        values = declare_parameters(node, SPECS)
+        assert values['units'] == 'inch' and values['stations'] == 3
+        # an integer given for a float parameter is coerced and declared as a float
+        assert values['latency_s'] == 0.0 and isinstance(values['latency_s'], float)
+        assert node.get_parameter('latency_s').value == 0.0
+        assert node.get_parameter('port').value == '/dev/ttyUSB0'   # the default
+        descriptor = node.describe_parameter('stations')
+        assert (descriptor.integer_range[0].from_value, descriptor.integer_range[0].to_value) \
+            == (1, 16)
+    finally:
+        node.destroy_node()
+
+
+def test_declare_parameters_refuses_a_bad_value_with_its_range(ros_context):
+    from inhand_common.ros_parameters import declare_parameters
+    node = make_node(ros_context, '-p', 'stations:=40')
+    try:
+        with pytest.raises(ParameterError,
+                           match=r"'stations' = 40 is refused: allowed is an integer in \[1, 16\]"):
+            declare_parameters(node, SPECS)
+    finally:
+        node.destroy_node()

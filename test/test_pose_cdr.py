@@ -14,8 +14,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys import Stores, get_typestore
 
-from inhand_mapping.pose_cdr import (decode_pose_stamped, decode_pose_stamped_many,
-                                     encode_pose_stamped)
+from inhand_mapping.pose_cdr import decode_pose_stamped, decode_pose_stamped_many, encode_pose_stamped
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 RB_POSE_STAMPED = STORE.types['geometry_msgs/msg/PoseStamped']
@@ -162,11 +161,11 @@ def test_truncated_and_malformed_buffers_are_refused():
     # Up to 3 bytes of trailing padding are CDR-legal and ignored.
     assert decode_pose_stamped(good + bytes(3))[:3] == (3, 4, 'object')
     # A batch names the offending message, whichever path it takes.
-    with pytest.raises(ValueError, match='message 2: .*truncated'):
+    with pytest.raises(ValueError, match=r'message 2: .*truncated'):
         decode_pose_stamped_many([good, good, good[:-1]])
-    with pytest.raises(ValueError, match='message 1: .*NUL'):
+    with pytest.raises(ValueError, match=r'message 1: .*NUL'):
         decode_pose_stamped_many([good, bytes(no_nul), good])
-    with pytest.raises(ValueError, match='message 2: .*encapsulation 0x0300'):
+    with pytest.raises(ValueError, match=r'message 2: .*encapsulation 0x0300'):
         decode_pose_stamped_many([good, good, b'\x03\x00' + good[2:]])
 
 

@@ -2,9 +2,9 @@
 
 import re
 
-from conftest import WORKSPACE
 import pytest
 
+from conftest import WORKSPACE
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS
 from polhemus_liberty.driver_config import DRIVER_PARAMETERS
 

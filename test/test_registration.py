@@ -11,8 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from inhand_common.rotations import (euler_zyx_to_quaternion, quaternion_multiply,
-                                     quaternion_to_matrix, slerp)
+from inhand_common.rotations import euler_zyx_to_quaternion, quaternion_multiply, quaternion_to_matrix, slerp
 from inhand_mapping.registration import Registrar, RegistrationStats
 
 RATE = 240.0

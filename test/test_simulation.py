@@ -11,13 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inhand_common.ground_truth import TRUTH_KEYS, load_truth, truth_path
 from inhand_common.rotations import quaternion_conjugate, quaternion_multiply, rotate_vectors
 from inhand_mapping.map_io import load_npz
-from inhand_sim.exploration import (FINGERS, SAMPLE_KINDS, ExplorationSettings, TrackerNoise,
-                                    explore)
+from inhand_sim.exploration import FINGERS, SAMPLE_KINDS, ExplorationSettings, TrackerNoise, explore
 from inhand_sim.objects import OBJECT_NAMES, get_object
-from inhand_sim.session import (TRUTH_KEYS, SessionSettings, load_truth, simulate, truth_path,
-                                write_session)
+from inhand_sim.session import SessionSettings, simulate, write_session
 from ros_helpers import WORKSPACE, executable_path
 
 FAST = ExplorationSettings(pool_size=150)
@@ -267,6 +266,7 @@ def test_exploration_is_deterministic():
 def test_bag_has_exactly_the_driver_topics_one_stamp_per_frame(written, static_session,
                                                                  moving_session):
     from rosbags.highlevel import AnyReader
+
     from inhand_mapping.pose_cdr import decode_pose_stamped
     for key, session in (('static', static_session), ('moving', moving_session)):
         expected = set(TOPICS) if key == 'static' else TOPICS | {'/polhemus/object/pose',
@@ -338,7 +338,7 @@ def test_truth_sidecar_format(written, static_session):
     assert np.all(arrays['object_positions'] == arrays['object_positions'][0])   # static
     assert set(np.round(arrays['contact_times'], 6)) <= set(np.round(times, 6))
     truth = load_truth(path)
-    assert truth['settings']['seed'] == 11 and truth['object_name'] == 'cat'
+    assert truth.settings['seed'] == 11 and truth.object_name == 'cat'
 
 
 def test_same_seed_same_bytes_other_seed_other_data(tmp_path):

@@ -19,9 +19,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'registration_node = inhand_mapping.registration_node:main',
-            'occupancy_node = inhand_mapping.occupancy_node:main',
-            'build_map = inhand_mapping.build_map:main',
+            'registration_node = inhand_mapping.nodes.registration_node:main',
+            'occupancy_node = inhand_mapping.nodes.occupancy_node:main',
+            'build_map = inhand_mapping.commands.build_map:main',
         ],
     },
 )

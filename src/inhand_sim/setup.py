@@ -19,7 +19,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'simulate_session = inhand_sim.simulate_session:main',
+            'simulate_session = inhand_sim.commands.simulate_session:main',
         ],
     },
 )

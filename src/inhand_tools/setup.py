@@ -19,11 +19,11 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'bag_replay = inhand_tools.bag_replay:main',
-            'bag_record = inhand_tools.bag_record:main',
-            'topic_echo = inhand_tools.topic_echo:main',
-            'map_metrics = inhand_tools.map_metrics:main',
-            'render_map = inhand_tools.render_map:main',
+            'bag_replay = inhand_tools.commands.bag_replay:main',
+            'bag_record = inhand_tools.commands.bag_record:main',
+            'topic_echo = inhand_tools.commands.topic_echo:main',
+            'map_metrics = inhand_tools.commands.map_metrics:main',
+            'render_map = inhand_tools.commands.render_map:main',
         ],
     },
 )

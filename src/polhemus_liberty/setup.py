@@ -19,8 +19,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'liberty_driver = polhemus_liberty.driver_node:main',
-            'liberty_emulator = polhemus_liberty.emulator_main:main',
+            'liberty_driver = polhemus_liberty.nodes.liberty_driver:main',
+            'liberty_emulator = polhemus_liberty.commands.liberty_emulator:main',
         ],
     },
 )

@@ -46,11 +46,17 @@ from pathlib import Path
 
 import serial
 
+from inhand_common.ros_names import station_pose_topic
 from polhemus_liberty.emulator import LibertyEmulator
 from polhemus_liberty.motion import BuiltinMotion
-from polhemus_liberty.protocol import (DEFAULT_OUTPUT_ITEMS, AsciiStreamParser,
-                                       BinaryStreamParser, OutputList, StationRecord,
-                                       cmd_output_list)
+from polhemus_liberty.protocol import (
+    DEFAULT_OUTPUT_ITEMS,
+    AsciiStreamParser,
+    BinaryStreamParser,
+    OutputList,
+    StationRecord,
+    cmd_output_list,
+)
 
 WORKSPACE = Path(__file__).resolve().parents[2]
 DRIVER_EXE = WORKSPACE / '.venv' / 'bin' / 'liberty_driver'
@@ -273,7 +279,7 @@ class PoseCounter:
             # raw=True: the callback gets the serialized message; counting needs no
             # deserialization, which keeps this process's CPU for the emulator.
             self.subscriptions[name] = self.node.create_subscription(
-                PoseStamped, f'polhemus/{name}/pose', self._counter(name), qos, raw=True)
+                PoseStamped, station_pose_topic(name), self._counter(name), qos, raw=True)
         self.diag: dict[str, str] | None = None
         self.diag_time = 0.0
         self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diag, 10)
@@ -290,7 +296,7 @@ class PoseCounter:
         try:
             while not self.done.done():
                 self.executor.spin_until_future_complete(self.done, timeout_sec=0.2)
-        except Exception:  # noqa: BLE001 - shutdown races end the spin either way
+        except Exception:
             pass
 
     def _counter(self, name):
@@ -329,7 +335,7 @@ class PoseCounter:
         try:
             self.executor.shutdown()
             self.node.destroy_node()
-        except Exception:  # noqa: BLE001 - best effort at exit
+        except Exception:
             pass
         self.rclpy.try_shutdown()
 

@@ -263,7 +263,7 @@ def subscriber_main() -> int:
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import PointCloud2
 
-    from inhand_mapping.occupancy_node import MAP_QOS
+    from inhand_mapping.nodes.occupancy_node import MAP_QOS
 
     rclpy.init()
     node = Node('bench_mapping_listener')
@@ -340,7 +340,7 @@ def full_grid():
 def reference_cells(grid, threshold: float | None = None) -> np.ndarray:
     """The MAP_CELL_DTYPE cloud built independently of the compiled gather, from
     ``OccupancyGrid.cells`` (what ``save_map`` writes to the PLY)."""
-    from inhand_mapping.clouds import MAP_CELL_DTYPE
+    from inhand_mapping.cloud_layouts import MAP_CELL_DTYPE
 
     centres, probabilities, hits, first = grid.cells(threshold=threshold)
     known = grid.first_touch[np.isfinite(grid.first_touch)]
@@ -365,10 +365,10 @@ def bench_publish(repeats: int) -> tuple[bool, bool, bool]:
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import PointCloud2
 
-    from inhand_common.point_cloud import (from_point_cloud2, serialize_point_cloud2,
-                                           to_point_cloud2)
+    from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2, to_point_cloud2
+    from inhand_common.ros_names import MAP_FRAME
     from inhand_mapping.map_products import MapProducts
-    from inhand_mapping.occupancy_node import MAP_FRAME, MAP_QOS
+    from inhand_mapping.nodes.occupancy_node import MAP_QOS
 
     threshold = occupied_threshold()
     grid = full_grid()
@@ -539,7 +539,7 @@ class Ticker:
         while not self.done.wait(self.every):
             progress(f'{self.label}: {time.monotonic() - self.start:.0f} s')
 
-    def __enter__(self) -> 'Ticker':
+    def __enter__(self) -> Ticker:
         self.thread.start()
         return self
 

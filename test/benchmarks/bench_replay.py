@@ -12,10 +12,10 @@ lighter a load than the device's rate; ``--bag`` replays another bag instead.
 For each run: start registration_node and occupancy_node (config/mapping.yaml) in a DDS
 domain of their own, replay the bag with ``bag_replay --fast``, and clock from the start of
 the replay's first publication until the last registered points (a watch subscribed
-before the replay waits until none has come for 1 s); then call occupancy/save and read the node's own count of points integrated,
-outside or invalid, which must equal the bag's fingertip messages. Prints the real-time
-factor (bag seconds / wall seconds), where the time went (replay publishing, registration,
-integration), and exits non-zero if anything was lost.
+before the replay waits until none has come for 1 s); then call occupancy/save and read the
+node's own count of points integrated, outside or invalid, which must equal the bag's
+fingertip messages. Prints the real-time factor (bag seconds / wall seconds), where the time
+went (replay publishing, registration, integration), and exits non-zero if anything was lost.
 """
 
 from __future__ import annotations

@@ -11,17 +11,37 @@ that died, a copy that stopped) is read record by record up to the cut with
 
 from __future__ import annotations
 
+import struct
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
-from typing import Iterator
 
 __all__ = ['BagError', 'BagSource', 'BagTopic', 'Progress', 'relative_name']
 
 
 class BagError(ValueError):
     """A bag that cannot be used, with a message for the user."""
+
+
+@cache
+def _read_errors() -> tuple[type[BaseException], ...]:
+    """What opening or reading a file that is not a bag, or a damaged one, raises: rosbags'
+    own errors, the file system's, and what surfaces from below rosbags' checks: a record cut
+    short (struct, EOF), a length field past the end (Overflow), a compressed chunk that does
+    not decompress (zstd, lz4's RuntimeError). Imported on first use: rosbags is slow to
+    import, and the commands check their arguments before they open a bag."""
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Rosbag1ReaderError
+    from rosbags.rosbag2 import ReaderError as Rosbag2ReaderError
+    try:
+        from compression import zstd  # type: ignore[import-not-found]  # Python 3.14
+    except ImportError:
+        from backports import zstd
+    return (AnyReaderError, Rosbag1ReaderError, Rosbag2ReaderError, OSError, struct.error,
+            EOFError, OverflowError, ValueError, RuntimeError, zstd.ZstdError)
 
 
 def relative_name(topic: str) -> str:
@@ -55,7 +75,7 @@ class BagSource:
         self._reader = None
         self._recovered: list[tuple[str, int, bytes]] | None = None
 
-    def __enter__(self) -> 'BagSource':
+    def __enter__(self) -> BagSource:
         if not self.bag.exists():
             raise BagError(f'{self.bag}: no such bag')
         from rosbags.highlevel import AnyReader
@@ -64,7 +84,7 @@ class BagSource:
             self._reader = AnyReader([self.bag], default_typestore=get_typestore(
                 Stores.ROS2_JAZZY))
             self._reader.open()
-        except Exception as error:  # rosbags raises several types for unreadable files
+        except _read_errors() as error:
             self._reader = None
             self._recover(error)
             return self
@@ -137,7 +157,7 @@ class BagSource:
             for connection, timestamp, raw in self._reader.messages(connections=connections,
                                                                     start=start_ns):
                 yield relative_name(connection.topic), timestamp, raw
-        except Exception as error:  # a damaged bag: keep what was read
+        except _read_errors() as error:  # a damaged bag: keep what was read
             self.problem = f'{type(error).__name__}: {error}'
 
     def __exit__(self, *exc) -> None:

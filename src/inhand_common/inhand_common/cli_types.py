@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Callable
+from collections.abc import Callable
 
-__all__ = ['number', 'positive_float', 'non_negative_float']
+__all__ = ['non_negative_float', 'number', 'positive_float']
 
 
 def number(above: float | None = None, at_least: float | None = None,

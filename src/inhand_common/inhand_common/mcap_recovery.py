@@ -10,11 +10,11 @@ record, saying where and why.
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
-__all__ = ['recover_mcap', 'RecoveryReport', 'McapMessage']
+__all__ = ['McapMessage', 'RecoveryReport', 'recover_mcap']
 
 MAGIC = b'\x89MCAP0\r\n'
 OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_FOOTER, OP_DATA_END = 0x03, 0x04, 0x05, 0x06, \

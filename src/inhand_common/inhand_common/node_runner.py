@@ -12,7 +12,7 @@ from __future__ import annotations
 import signal
 import sys
 import threading
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -21,7 +21,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from inhand_common.parameters import ParameterError
 
-__all__ = ['run_node', 'EXIT_BAD_PARAMETERS']
+__all__ = ['EXIT_BAD_PARAMETERS', 'run_node']
 
 EXIT_BAD_PARAMETERS = 2
 SPIN_SLICE = 0.1  # s: how often the spin loop looks at the stop flag

@@ -14,10 +14,11 @@ No rclpy here: this module is tested directly.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
-__all__ = ['ParamSpec', 'ParameterError', 'validate', 'load_yaml_parameters']
+__all__ = ['ParamSpec', 'ParameterError', 'load_yaml_parameters', 'validate']
 
 
 class ParameterError(ValueError):

@@ -17,7 +17,7 @@ import sys
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
-__all__ = ['to_point_cloud2', 'serialize_point_cloud2', 'from_point_cloud2', 'pack_rgb']
+__all__ = ['from_point_cloud2', 'pack_rgb', 'serialize_point_cloud2', 'to_point_cloud2']
 
 _TO_POINTFIELD = {
     np.dtype('int8'): PointField.INT8, np.dtype('uint8'): PointField.UINT8,

@@ -9,7 +9,8 @@ integer written where a number is expected (``sigma: 2`` in YAML) is accepted as
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
@@ -17,7 +18,7 @@ from rclpy.parameter import Parameter
 
 from inhand_common.parameters import ParameterError, ParamSpec, validate
 
-__all__ = ['declare_parameters']
+__all__ = ['command_line_overrides', 'declare_parameters']
 
 _INT64_MIN, _INT64_MAX = -2**63, 2**63 - 1
 
@@ -44,14 +45,30 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     return descriptor
 
 
+def command_line_overrides(node: Node) -> dict[str, Parameter]:
+    """The values given to ``node`` with ``--ros-args -p`` / ``--params-file``, by name.
+
+    rclpy has no public call for these: it keeps them in ``Node._parameter_overrides`` until
+    the parameters are declared. They must be read before declaring, to refuse a bad value
+    with its range instead of rclpy's bare exception and to name parameters the node does not
+    have. If a future rclpy moves them, this fails loudly here (and
+    ``test_parameters.py::test_command_line_overrides_reach_declare_parameters`` fails)
+    instead of every node silently running on its defaults.
+    """
+    overrides = getattr(node, '_parameter_overrides', None)
+    if not isinstance(overrides, dict):
+        raise RuntimeError('this rclpy keeps no Node._parameter_overrides dict: '
+                           'inhand_common.ros_parameters cannot read --ros-args values')
+    return overrides
+
+
 def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
     """Declare every spec on ``node`` and return the validated values by name.
 
     Raises :class:`~inhand_common.parameters.ParameterError` listing every refused value.
     """
     specs = list(specs)
-    # rclpy keeps the command-line and file overrides here until parameters are declared.
-    overrides: dict[str, Parameter] = getattr(node, '_parameter_overrides', {})
+    overrides = command_line_overrides(node)
     given = {spec.name: overrides[spec.name].value for spec in specs if spec.name in overrides}
     problems = []
     try:

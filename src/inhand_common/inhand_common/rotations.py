@@ -17,6 +17,9 @@ registration and simulation hot paths stay vectorised.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+from inhand_common.array_types import Floats, Matrices, Quaternions
 
 __all__ = [
     'euler_zyx_to_matrix',
@@ -34,11 +37,12 @@ __all__ = [
 ]
 
 
-def _stack_last(*parts: np.ndarray) -> np.ndarray:
+def _stack_last(*parts: ArrayLike) -> Floats:
     return np.stack(np.broadcast_arrays(*parts), axis=-1)
 
 
-def euler_zyx_to_quaternion(azimuth, elevation, roll) -> np.ndarray:
+def euler_zyx_to_quaternion(azimuth: ArrayLike, elevation: ArrayLike, roll: ArrayLike
+                            ) -> Quaternions:
     """Quaternion ``(x, y, z, w)`` of ``Rz(azimuth) Ry(elevation) Rx(roll)`` (radians)."""
     ha, he, hr = (np.asarray(a, dtype=float) * 0.5 for a in (azimuth, elevation, roll))
     ca, sa = np.cos(ha), np.sin(ha)
@@ -52,7 +56,7 @@ def euler_zyx_to_quaternion(azimuth, elevation, roll) -> np.ndarray:
     return _stack_last(x, y, z, w)
 
 
-def euler_zyx_to_matrix(azimuth, elevation, roll) -> np.ndarray:
+def euler_zyx_to_matrix(azimuth: ArrayLike, elevation: ArrayLike, roll: ArrayLike) -> Matrices:
     """Rotation matrix ``Rz(azimuth) @ Ry(elevation) @ Rx(roll)`` (radians), shape (..., 3, 3)."""
     a, e, r = (np.asarray(v, dtype=float) for v in (azimuth, elevation, roll))
     ca, sa, ce, se, cr, sr = np.cos(a), np.sin(a), np.cos(e), np.sin(e), np.cos(r), np.sin(r)
@@ -64,7 +68,7 @@ def euler_zyx_to_matrix(azimuth, elevation, roll) -> np.ndarray:
     return np.stack([_stack_last(*row) for row in rows], axis=-2)
 
 
-def matrix_to_euler_zyx(matrix) -> np.ndarray:
+def matrix_to_euler_zyx(matrix: ArrayLike) -> Floats:
     """Azimuth, elevation, roll (radians) of a rotation matrix, stacked on the last axis.
 
     At elevation +-90 degrees azimuth and roll are not separable; the split chosen there
@@ -80,33 +84,33 @@ def matrix_to_euler_zyx(matrix) -> np.ndarray:
     return _stack_last(azimuth, elevation, roll)
 
 
-def quaternion_normalize(q) -> np.ndarray:
+def quaternion_normalize(q: ArrayLike) -> Quaternions:
     """Unit quaternion; raises ValueError on a zero or non-finite quaternion."""
-    q = np.asarray(q, dtype=float)
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    quaternion = np.asarray(q, dtype=float)
+    norm = np.linalg.norm(quaternion, axis=-1, keepdims=True)
     if not np.all(np.isfinite(norm)) or np.any(norm < 1e-12):
         raise ValueError('quaternion with zero or non-finite norm')
-    return q / norm
+    unit: Quaternions = quaternion / norm
+    return unit
 
 
-def quaternion_canonical(q) -> np.ndarray:
+def quaternion_canonical(q: ArrayLike) -> Quaternions:
     """The same rotation with ``w >= 0`` (q and -q are one rotation)."""
-    q = np.asarray(q, dtype=float)
-    return np.where(q[..., 3:4] < 0.0, -q, q)
+    quaternion = np.asarray(q, dtype=float)
+    canonical: Quaternions = np.where(quaternion[..., 3:4] < 0.0, -quaternion, quaternion)
+    return canonical
 
 
-def quaternion_conjugate(q) -> np.ndarray:
+def quaternion_conjugate(q: ArrayLike) -> Quaternions:
     """Inverse of a unit quaternion."""
-    q = np.asarray(q, dtype=float)
-    return q * np.array([-1.0, -1.0, -1.0, 1.0])
+    inverse: Quaternions = np.asarray(q, dtype=float) * np.array([-1.0, -1.0, -1.0, 1.0])
+    return inverse
 
 
-def quaternion_multiply(q1, q2) -> np.ndarray:
+def quaternion_multiply(q1: ArrayLike, q2: ArrayLike) -> Quaternions:
     """Hamilton product ``q1 * q2`` (apply q2 first, then q1)."""
-    q1 = np.asarray(q1, dtype=float)
-    q2 = np.asarray(q2, dtype=float)
-    x1, y1, z1, w1 = np.moveaxis(q1, -1, 0)
-    x2, y2, z2, w2 = np.moveaxis(q2, -1, 0)
+    x1, y1, z1, w1 = np.moveaxis(np.asarray(q1, dtype=float), -1, 0)
+    x2, y2, z2, w2 = np.moveaxis(np.asarray(q2, dtype=float), -1, 0)
     return _stack_last(
         w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
         w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
@@ -115,7 +119,7 @@ def quaternion_multiply(q1, q2) -> np.ndarray:
     )
 
 
-def quaternion_to_matrix(q) -> np.ndarray:
+def quaternion_to_matrix(q: ArrayLike) -> Matrices:
     """Rotation matrix of a quaternion ``(x, y, z, w)`` (normalised first), shape (..., 3, 3)."""
     x, y, z, w = np.moveaxis(quaternion_normalize(q), -1, 0)
     rows = [
@@ -126,7 +130,7 @@ def quaternion_to_matrix(q) -> np.ndarray:
     return np.stack([_stack_last(*row) for row in rows], axis=-2)
 
 
-def matrix_to_quaternion(matrix) -> np.ndarray:
+def matrix_to_quaternion(matrix: ArrayLike) -> Quaternions:
     """Quaternion ``(x, y, z, w)`` with ``w >= 0`` of a rotation matrix.
 
     Shepperd's method: picks the largest of w, x, y, z to divide by, so it stays accurate
@@ -154,33 +158,34 @@ def matrix_to_quaternion(matrix) -> np.ndarray:
     return quaternion_canonical(quaternion_normalize(q))
 
 
-def quaternion_to_euler_zyx(q) -> np.ndarray:
+def quaternion_to_euler_zyx(q: ArrayLike) -> Floats:
     """Azimuth, elevation, roll (radians) of a quaternion ``(x, y, z, w)``."""
     return matrix_to_euler_zyx(quaternion_to_matrix(q))
 
 
-def rotate_vectors(q, v) -> np.ndarray:
+def rotate_vectors(q: ArrayLike, v: ArrayLike) -> Floats:
     """Rotate vectors ``v`` (..., 3) by quaternions ``q`` (..., 4): ``R(q) @ v``."""
-    q = quaternion_normalize(q)
-    v = np.asarray(v, dtype=float)
-    u = q[..., :3]
-    w = q[..., 3:4]
+    unit = quaternion_normalize(q)
+    vectors = np.asarray(v, dtype=float)
+    u = unit[..., :3]
+    w = unit[..., 3:4]
     # v' = v + 2 w (u x v) + 2 u x (u x v): no matrix built, cheap for large stacks.
-    uv = np.cross(u, v)
-    return v + 2.0 * (w * uv + np.cross(u, uv))
+    uv = np.cross(u, vectors)
+    rotated: Floats = vectors + 2.0 * (w * uv + np.cross(u, uv))
+    return rotated
 
 
-def slerp(q0, q1, fraction) -> np.ndarray:
+def slerp(q0: ArrayLike, q1: ArrayLike, fraction: ArrayLike) -> Quaternions:
     """Spherical linear interpolation from ``q0`` (fraction 0) to ``q1`` (fraction 1).
 
     Takes the short way round (flips ``q1`` when the dot product is negative) and falls
     back to normalised linear interpolation when the two are nearly equal.
     """
-    q0 = quaternion_normalize(q0)
-    q1 = quaternion_normalize(q1)
+    start = quaternion_normalize(q0)
+    end = quaternion_normalize(q1)
     t = np.asarray(fraction, dtype=float)[..., None]
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0.0, -q1, q1)
+    dot = np.sum(start * end, axis=-1, keepdims=True)
+    end = np.where(dot < 0.0, -end, end)
     dot = np.abs(dot)
     theta = np.arccos(np.clip(dot, -1.0, 1.0))
     sin_theta = np.sin(theta)
@@ -188,4 +193,4 @@ def slerp(q0, q1, fraction) -> np.ndarray:
     safe = np.where(near, 1.0, sin_theta)
     w0 = np.where(near, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
     w1 = np.where(near, t, np.sin(t * theta) / safe)
-    return quaternion_normalize(w0 * q0 + w1 * q1)
+    return quaternion_normalize(w0 * start + w1 * end)

@@ -36,44 +36,65 @@ stream is cut into pushes. Plain numpy.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from typing import TypeAlias
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+from inhand_common.array_types import Bools, FingerIds, Floats, Points, Rows, Times, Weights
 
 __all__ = ['DwellWeights', 'WeightedSamples']
 
+# What selects samples: a slice, a mask or integer positions.
+Selection: TypeAlias = slice | Bools | Rows
 
-class WeightedSamples(NamedTuple):
-    """Samples released by ``DwellWeights`` with their weights, in the order pushed."""
 
-    points: np.ndarray   # (N, 3)
-    times: np.ndarray    # (N,)
-    fingers: np.ndarray  # (N,) int64
-    weights: np.ndarray  # (N,) in [0, 1]
+@dataclass(frozen=True, slots=True)
+class WeightedSamples:
+    """Samples released by ``DwellWeights`` with their weights, in the order pushed.
+
+    Iterating gives the four arrays in field order (``points, times, fingers, weights =
+    samples``). A dataclass rather than a NamedTuple: ``count`` would shadow ``tuple.count``.
+    """
+
+    points: Points      # (N, 3)
+    times: Times        # (N,)
+    fingers: FingerIds  # (N,) int64
+    weights: Weights    # (N,) in [0, 1]
+
+    def __iter__(self) -> Iterator[Floats | FingerIds]:
+        return iter((self.points, self.times, self.fingers, self.weights))
 
     @classmethod
-    def empty(cls) -> 'WeightedSamples':
+    def empty(cls) -> WeightedSamples:
         return cls(np.empty((0, 3)), np.empty(0), np.empty(0, np.int64), np.empty(0))
 
     @property
     def count(self) -> int:
         return len(self.times)
 
-    def part(self, index) -> 'WeightedSamples':
-        return WeightedSamples(*(field[index] for field in self))
+    def part(self, index: Selection) -> WeightedSamples:
+        return WeightedSamples(self.points[index], self.times[index], self.fingers[index],
+                               self.weights[index])
 
     @classmethod
-    def joined(cls, parts) -> 'WeightedSamples':
+    def joined(cls, parts: Iterable[WeightedSamples]) -> WeightedSamples:
         parts = [part for part in parts if part.count]
         if not parts:
             return cls.empty()
-        return cls(*(np.concatenate(fields) for fields in zip(*parts)))
+        return cls(np.concatenate([part.points for part in parts]),
+                   np.concatenate([part.times for part in parts]),
+                   np.concatenate([part.fingers for part in parts]),
+                   np.concatenate([part.weights for part in parts]))
 
 
-def _usable(points, times) -> np.ndarray:
+def _usable(points: Points, times: Times) -> Bools:
     """Samples with a finite time and position: the only ones that are a finger's
     neighbours."""
-    return np.isfinite(times) & np.all(np.isfinite(points), axis=1)
+    usable: Bools = np.isfinite(times) & np.all(np.isfinite(points), axis=1)
+    return usable
 
 
 class DwellWeights:
@@ -100,7 +121,7 @@ class DwellWeights:
         self._held = WeightedSamples.empty()
         # Per finger: the newest released samples (times, points), two periods' worth, as
         # the earlier neighbours of the samples still held back.
-        self._history: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._history: dict[int, tuple[Times, Points]] = {}
         self._latest = -np.inf   # newest usable time pushed
 
     @property
@@ -108,27 +129,28 @@ class DwellWeights:
         """Samples held back until their finger's next period arrives."""
         return self._held.count
 
-    def push(self, points, times, fingers) -> WeightedSamples:
+    def push(self, points: ArrayLike, times: ArrayLike, fingers: ArrayLike) -> WeightedSamples:
         """Take samples (in time order); return those whose weights are now settled."""
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        times = np.asarray(times, dtype=np.float64).reshape(-1)
-        fingers = np.asarray(fingers).reshape(-1).astype(np.int64)
-        usable = _usable(points, times)
+        positions: Points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        stamps: Times = np.asarray(times, dtype=np.float64).reshape(-1)
+        finger_ids: FingerIds = np.asarray(fingers).reshape(-1).astype(np.int64)
+        usable = _usable(positions, stamps)
         released = []
-        while len(times):
+        while len(stamps):
             # Newest usable time before each sample; a time falling back more than a period
             # below it starts a new stream there.
-            newest = np.maximum.accumulate(np.where(usable, times, -np.inf))
+            newest = np.maximum.accumulate(np.where(usable, stamps, -np.inf))
             before = np.maximum(self._latest, np.concatenate([[-np.inf], newest[:-1]]))
-            restart = np.flatnonzero(usable & (times < before - self.period))
-            cut = restart[0] if len(restart) else len(times)
-            self._hold(points[:cut], times[:cut], fingers[:cut])
-            if cut == len(times):
+            restart = np.flatnonzero(usable & (stamps < before - self.period))
+            cut = restart[0] if len(restart) else len(stamps)
+            self._hold(positions[:cut], stamps[:cut], finger_ids[:cut])
+            if cut == len(stamps):
                 released.append(self._release(everything=False))
                 break
             released.append(self._release(everything=True))
             self.reset()
-            points, times, fingers, usable = points[cut:], times[cut:], fingers[cut:], usable[cut:]
+            positions, stamps = positions[cut:], stamps[cut:]
+            finger_ids, usable = finger_ids[cut:], usable[cut:]
         return WeightedSamples.joined(released)
 
     def flush(self) -> WeightedSamples:
@@ -136,7 +158,7 @@ class DwellWeights:
         return self._release(everything=True)
 
     # ------------------------------------------------------------------ internals
-    def _hold(self, points, times, fingers) -> None:
+    def _hold(self, points: Points, times: Times, fingers: FingerIds) -> None:
         # Held samples carry weight 1 until released: what unusable ones keep.
         self._held = WeightedSamples.joined(
             [self._held, WeightedSamples(points, times, fingers, np.ones(len(times)))])
@@ -159,7 +181,7 @@ class DwellWeights:
         self._held = held.part(slice(count, None))
         return out
 
-    def _settled_prefix(self, usable) -> int:
+    def _settled_prefix(self, usable: Bools) -> int:
         """How many held samples, from the oldest, have every neighbour that can count."""
         held, period = self._held, self.period
         settled = ~usable | (held.times + 2.0 * period + self._slack < self._latest)
@@ -169,7 +191,8 @@ class DwellWeights:
             settled |= mine & (held.times + period - self._slack <= newest)
         return len(settled) if settled.all() else int(np.argmin(settled))
 
-    def _finger_weights(self, finger: int, times, points, releasing) -> np.ndarray:
+    def _finger_weights(self, finger: int, times: Times, points: Points, releasing: Bools
+                        ) -> Weights:
         """Weights of the ``releasing`` ones of a finger's held samples (the others are their
         later neighbours); the finger's history updated."""
         period, slack = self.period, self._slack
@@ -194,9 +217,10 @@ class DwellWeights:
         if len(released_t):
             keep = released_t >= released_t.max() - 2.0 * period - slack
             self._history[finger] = (released_t[keep], released_p[keep])
-        return np.minimum(dt, crossing) / period
+        weights: Weights = np.minimum(dt, crossing) / period
+        return weights
 
-    def _speed(self, all_t, all_p, k, other) -> np.ndarray:
+    def _speed(self, all_t: Times, all_p: Points, k: Rows, other: Rows) -> Floats:
         """Speed between samples ``k`` and ``other`` (indices into all_*), 0 where ``other``
         is missing or more than two periods away."""
         speed = np.zeros(len(k))

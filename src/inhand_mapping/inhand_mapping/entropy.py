@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['cell_entropy', 'map_entropy', 'eq10_entropy', 'entropy_weights']
+__all__ = ['cell_entropy', 'entropy_weights', 'eq10_entropy', 'map_entropy']
 
 
 def _xlog2x(p: np.ndarray) -> np.ndarray:

@@ -15,15 +15,21 @@ Both are written atomically (temporary file, then rename).
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, fields
 from pathlib import Path
+from typing import Any, TypeAlias
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from inhand_common.array_types import Records
 from inhand_common.atomic_file import atomic_write
 from inhand_mapping.occupancy import GridSpec, IntegrationCounts, OccupancyGrid, SensorModel
 
-__all__ = ['save_npz', 'load_npz', 'save_ply', 'read_ply', 'FORMAT_VERSION']
+__all__ = ['FORMAT_VERSION', 'load_npz', 'read_ply', 'save_npz', 'save_ply']
+
+FilePath: TypeAlias = str | os.PathLike[str]
 
 FORMAT_VERSION = 2
 SENSOR_MODEL_FIELDS = tuple(f.name for f in fields(SensorModel))
@@ -31,7 +37,8 @@ SENSOR_MODEL_FIELDS = tuple(f.name for f in fields(SensorModel))
 VERSION_1_MODEL = {'distance_to': 'centre', 'evidence_rate': 0.0, 'visit_gap': 0.0}
 
 
-def save_npz(grid: OccupancyGrid, path, frame_id: str = 'object', extra: dict | None = None) -> Path:
+def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
+             extra: dict[str, Any] | None = None) -> Path:
     spec, model = grid.spec, grid.model
     metadata = {
         'format_version': FORMAT_VERSION, 'frame_id': frame_id,
@@ -40,22 +47,22 @@ def save_npz(grid: OccupancyGrid, path, frame_id: str = 'object', extra: dict | 
         **asdict(model),
         'counts': vars(grid.counts), 'extra': extra or {},
     }
-    path = Path(path)
-    with atomic_write(path) as stream:
+    target = Path(path)
+    with atomic_write(target) as stream:
         np.savez_compressed(stream, log_odds=grid.log_odds, hits=grid.hits,
                             first_touch=grid.first_touch,
                             metadata=np.frombuffer(json.dumps(metadata).encode(), dtype=np.uint8))
-    return path
+    return target
 
 
-def load_npz(path) -> tuple[OccupancyGrid, dict]:
+def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
     """The grid saved by :func:`save_npz` and its metadata; ValueError if it is not one."""
     try:
         data = np.load(path, allow_pickle=False)
         if not isinstance(data, np.lib.npyio.NpzFile):
             raise ValueError('a single array, not an NPZ archive')
         with data:
-            metadata = json.loads(bytes(data['metadata']).decode())
+            metadata: dict[str, Any] = json.loads(bytes(data['metadata']).decode())
             arrays = {k: data[k] for k in ('log_odds', 'hits', 'first_touch')}
     except Exception as error:  # numpy/zipfile raise many kinds for a foreign file
         raise ValueError(f'{path}: not a map saved by this software '
@@ -84,12 +91,14 @@ _PLY_FIELDS = [('x', '<f4', 'float'), ('y', '<f4', 'float'), ('z', '<f4', 'float
                ('first_touch', '<f8', 'double')]
 
 
-def save_ply(path, centres, probabilities, hits, first_touch, frame_id: str = 'object') -> Path:
-    """Occupied cells as a binary PLY point cloud (see the module doc for the fields)."""
-    count = len(probabilities)
+def save_ply(path: FilePath, centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
+             first_touch: ArrayLike, frame_id: str = 'object') -> Path:
+    """Occupied cells as a binary PLY point cloud (see the module doc for the fields): centres
+    (M, 3) and the three (M,) fields."""
+    count = len(np.asarray(probabilities))
     vertices = np.empty(count, dtype=[(name, dtype) for name, dtype, _ in _PLY_FIELDS])
-    centres = np.asarray(centres).reshape(-1, 3)
-    vertices['x'], vertices['y'], vertices['z'] = centres[:, 0], centres[:, 1], centres[:, 2]
+    xyz = np.asarray(centres).reshape(-1, 3)
+    vertices['x'], vertices['y'], vertices['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     vertices['intensity'] = probabilities
     vertices['hits'] = hits
     vertices['first_touch'] = first_touch
@@ -99,11 +108,11 @@ def save_ply(path, centres, probabilities, hits, first_touch, frame_id: str = 'o
               f'element vertex {count}']
     header += [f'property {ply_type} {name}' for name, _, ply_type in _PLY_FIELDS]
     header.append('end_header')
-    path = Path(path)
-    with atomic_write(path) as stream:
+    target = Path(path)
+    with atomic_write(target) as stream:
         stream.write(('\n'.join(header) + '\n').encode('ascii'))
         stream.write(vertices.tobytes())
-    return path
+    return target
 
 
 _PLY_TYPES = {'float': '<f4', 'float32': '<f4', 'double': '<f8', 'float64': '<f8',
@@ -112,12 +121,14 @@ _PLY_TYPES = {'float': '<f4', 'float32': '<f4', 'double': '<f8', 'float64': '<f8
               'int': '<i4', 'int32': '<i4'}
 
 
-def read_ply(path) -> np.ndarray:
+def read_ply(path: FilePath) -> Records:
     """Vertices of a binary little-endian PLY file with scalar properties (structured array)."""
     with open(path, 'rb') as stream:
         if stream.readline().strip() != b'ply':
             raise ValueError(f'{path}: not a PLY file')
-        fields, count, fmt = [], None, None
+        properties: list[tuple[str, str]] = []
+        count: int | None = None
+        fmt: str | None = None
         while True:
             line = stream.readline()
             if not line:
@@ -134,12 +145,14 @@ def read_ply(path) -> np.ndarray:
             elif words[0] == 'property':
                 if words[1] == 'list' or words[1] not in _PLY_TYPES:
                     raise ValueError(f'{path}: unsupported property {" ".join(words[1:])}')
-                fields.append((words[2], _PLY_TYPES[words[1]]))
+                properties.append((words[2], _PLY_TYPES[words[1]]))
             elif words[0] == 'end_header':
                 break
         if fmt != 'binary_little_endian':
             raise ValueError(f'{path}: PLY format {fmt}; only binary_little_endian is read')
-        dtype = np.dtype(fields)
+        if count is None:
+            raise ValueError(f'{path}: PLY header has no vertex element')
+        dtype = np.dtype(properties)
         data = stream.read()
     if len(data) < count * dtype.itemsize:
         raise ValueError(f'{path}: truncated: {len(data) // dtype.itemsize} of {count} vertices')

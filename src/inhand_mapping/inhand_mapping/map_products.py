@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inhand_mapping.clouds import MapClouds
+from inhand_mapping.cloud_layouts import MapClouds
 from inhand_mapping.map_io import save_npz, save_ply
 from inhand_mapping.object_frame import ObjectFrame, object_frame
 from inhand_mapping.occupancy import OccupancyGrid

@@ -7,20 +7,26 @@ map the nodes would have built.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
-from inhand_common.parameters import ParameterError, ParamSpec
+import yaml
+
+from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
+from inhand_common.ros_names import DEFAULT_OBJECT_STATION, station_pose_topic
 from inhand_mapping.occupancy import DISTANCES, GridSpec, OccupancyGrid, SensorModel
 from inhand_mapping.registration import Registrar
 
-__all__ = ['REGISTRATION_PARAMETERS', 'OCCUPANCY_PARAMETERS', 'make_registrar', 'make_grid',
-           'check_registration', 'check_occupancy']
+__all__ = ['OCCUPANCY_PARAMETERS', 'REGISTRATION_PARAMETERS', 'OccupancyConfig',
+           'RegistrationConfig', 'load_parameters', 'parse_overrides']
 
 REGISTRATION_PARAMETERS = (
     ParamSpec('mode', 'tracked', 'tracked: an object sensor is present and the map frame '
               'is its frame; static: no object sensor, the map frame is the tracker frame',
               choices=('tracked', 'static')),
-    ParamSpec('object_name', 'object', 'Station name of the object sensor '
+    ParamSpec('object_name', DEFAULT_OBJECT_STATION, 'Station name of the object sensor '
               '(subscribes polhemus/<object_name>/pose in tracked mode)'),
     ParamSpec('finger_names', ['thumb', 'index', 'middle'], 'Station names of the fingertip '
               'sensors (subscribes polhemus/<name>/pose)', min_length=1),
@@ -69,47 +75,119 @@ OCCUPANCY_PARAMETERS = (
 )
 
 
-def check_registration(values: Mapping[str, Any]) -> None:
-    names = list(values['finger_names'])
-    problems = []
-    if len(set(names)) != len(names):
-        problems.append(f"parameter 'finger_names' = {names} repeats a name")
-    if values['mode'] == 'tracked' and values['object_name'] in names:
-        problems.append(f"parameter 'object_name' = {values['object_name']!r} is also in "
-                        "'finger_names'")
-    if problems:
-        raise ParameterError(problems)
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """The registration node's parameters, checked and typed (``build_map`` uses the same)."""
+
+    mode: str                       # 'tracked' or 'static'
+    object_name: str                # station name of the object sensor (tracked mode)
+    finger_names: tuple[str, ...]   # station names of the fingertips; index = finger id
+    max_gap: float                  # s
+    max_pending: float              # s (wall clock)
+    publish_period: float           # s
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, Any]) -> RegistrationConfig:
+        """Build from validated parameter values; checks what spans several parameters."""
+        names = list(values['finger_names'])
+        problems = []
+        if len(set(names)) != len(names):
+            problems.append(f"parameter 'finger_names' = {names} repeats a name")
+        if values['mode'] == 'tracked' and values['object_name'] in names:
+            problems.append(f"parameter 'object_name' = {values['object_name']!r} is also in "
+                            "'finger_names'")
+        if problems:
+            raise ParameterError(problems)
+        return cls(mode=values['mode'], object_name=values['object_name'],
+                   finger_names=tuple(names), max_gap=float(values['max_gap']),
+                   max_pending=float(values['max_pending']),
+                   publish_period=float(values['publish_period']))
+
+    @property
+    def tracked(self) -> bool:
+        return self.mode == 'tracked'
+
+    @property
+    def finger_topics(self) -> dict[str, int]:
+        """Pose topic of each fingertip -> its finger id."""
+        return {station_pose_topic(name): index for index, name in enumerate(self.finger_names)}
+
+    @property
+    def object_topic(self) -> str | None:
+        """Pose topic of the object sensor; None in static mode."""
+        return station_pose_topic(self.object_name) if self.tracked else None
+
+    def make_registrar(self) -> Registrar:
+        return Registrar(self.mode, self.max_gap, self.max_pending,
+                         fingers=range(len(self.finger_names)))
 
 
-def check_occupancy(values: Mapping[str, Any]) -> None:
-    problems = []
-    cells = values['workspace_size'] / values['resolution']
-    if abs(cells - round(cells)) > 1e-6:
-        problems.append(f"parameters 'workspace_size' = {values['workspace_size']} and "
-                        f"'resolution' = {values['resolution']}: the size must be a whole "
-                        f'number of cells (it is {cells:.3f})')
-    elif round(cells) > 1000:
-        problems.append(f'{round(cells)} cells per axis is more than 1000: use a coarser '
-                        "'resolution' or a smaller 'workspace_size'")
-    if not values['clamp_min'] < values['prior'] < values['clamp_max']:
-        problems.append("parameters 'clamp_min' < 'prior' < 'clamp_max' must hold (got "
-                        f"{values['clamp_min']}, {values['prior']}, {values['clamp_max']})")
-    if problems:
-        raise ParameterError(problems)
+@dataclass(frozen=True)
+class OccupancyConfig:
+    """The occupancy node's parameters, checked and typed (``build_map`` uses the same)."""
+
+    grid: GridSpec
+    model: SensorModel
+    occupied_threshold: float
+    publish_rate: float             # Hz
+    output_dir: Path
+    map_name: str
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, Any]) -> OccupancyConfig:
+        """Build from validated parameter values; checks what spans several parameters."""
+        problems = []
+        cells = values['workspace_size'] / values['resolution']
+        if abs(cells - round(cells)) > 1e-6:
+            problems.append(f"parameters 'workspace_size' = {values['workspace_size']} and "
+                            f"'resolution' = {values['resolution']}: the size must be a whole "
+                            f'number of cells (it is {cells:.3f})')
+        elif round(cells) > 1000:
+            problems.append(f'{round(cells)} cells per axis is more than 1000: use a coarser '
+                            "'resolution' or a smaller 'workspace_size'")
+        if not values['clamp_min'] < values['prior'] < values['clamp_max']:
+            problems.append("parameters 'clamp_min' < 'prior' < 'clamp_max' must hold (got "
+                            f"{values['clamp_min']}, {values['prior']}, {values['clamp_max']})")
+        if problems:
+            raise ParameterError(problems)
+        grid = GridSpec(values['workspace_size'], values['resolution'],
+                        tuple(values['workspace_centre']))
+        model = SensorModel(values['sensor_sigma'], values['p_z_given_not_occupied'],
+                            values['prior'], values['clamp_min'], values['clamp_max'],
+                            values['neighbourhood'], values['distance_to'],
+                            values['evidence_rate'], values['visit_gap'])
+        return cls(grid=grid, model=model,
+                   occupied_threshold=float(values['occupied_threshold']),
+                   publish_rate=float(values['publish_rate']),
+                   output_dir=Path(values['output_dir']), map_name=values['map_name'])
+
+    def make_grid(self) -> OccupancyGrid:
+        return OccupancyGrid(self.grid, self.model)
 
 
-def make_registrar(values: Mapping[str, Any]) -> Registrar:
-    check_registration(values)
-    return Registrar(values['mode'], values['max_gap'], values['max_pending'],
-                     fingers=range(len(values['finger_names'])))
+def parse_overrides(pairs: list[str]) -> dict:
+    """``--set NAME=VALUE`` arguments as a dict, each value read as YAML (lists, numbers)."""
+    values = {}
+    for pair in pairs:
+        name, sep, text = pair.partition('=')
+        if not sep or not name:
+            raise ParameterError([f'--set {pair!r}: expected NAME=VALUE'])
+        values[name.strip()] = yaml.safe_load(text)
+    return values
 
 
-def make_grid(values: Mapping[str, Any]) -> OccupancyGrid:
-    check_occupancy(values)
-    spec = GridSpec(values['workspace_size'], values['resolution'],
-                    tuple(values['workspace_centre']))
-    model = SensorModel(values['sensor_sigma'], values['p_z_given_not_occupied'],
-                        values['prior'], values['clamp_min'], values['clamp_max'],
-                        values['neighbourhood'], values['distance_to'],
-                        values['evidence_rate'], values['visit_gap'])
-    return OccupancyGrid(spec, model)
+def load_parameters(config: str | None, overrides: dict
+                    ) -> tuple[RegistrationConfig, OccupancyConfig]:
+    """The registration and occupancy configurations the nodes would get from the
+    ``registration_node`` and ``occupancy_node`` sections of ``config``, then ``overrides``."""
+    registration = load_yaml_parameters(config, 'registration_node') if config else {}
+    occupancy = load_yaml_parameters(config, 'occupancy_node') if config else {}
+    registration_names = {s.name for s in REGISTRATION_PARAMETERS}
+    occupancy_names = {s.name for s in OCCUPANCY_PARAMETERS}
+    unknown = sorted(set(overrides) - registration_names - occupancy_names)
+    if unknown:
+        raise ParameterError([f"--set: unknown parameter '{name}'" for name in unknown])
+    registration.update({k: v for k, v in overrides.items() if k in registration_names})
+    occupancy.update({k: v for k, v in overrides.items() if k in occupancy_names})
+    return (RegistrationConfig.from_parameters(validate(REGISTRATION_PARAMETERS, registration)),
+            OccupancyConfig.from_parameters(validate(OCCUPANCY_PARAMETERS, occupancy)))

@@ -13,34 +13,39 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+from inhand_common.array_types import Matrix3, Points, Vector3
 
 __all__ = ['ObjectFrame', 'object_frame']
 
 
 @dataclass(frozen=True)
 class ObjectFrame:
-    centre_of_mass: np.ndarray     # (3,) map frame, metres
-    principal_axes: np.ndarray     # (3, 3) columns: unit axes, largest spread first, right-handed
-    principal_extents: np.ndarray  # (3,) standard deviation (m) along each axis
+    centre_of_mass: Vector3     # (3,) map frame, metres
+    principal_axes: Matrix3     # (3, 3) columns: unit axes, largest spread first, right-handed
+    principal_extents: Vector3  # (3,) standard deviation (m) along each axis
     mass: float                    # sum of the probabilities (zeroth moment)
     cells: int                     # cells above the threshold
 
-    def to_object_centric(self, points) -> np.ndarray:
+    def to_object_centric(self, points: ArrayLike) -> Points:
         """Map-frame points expressed in ``object_centric`` (origin at the centre of mass)."""
-        return np.asarray(points, dtype=float) - self.centre_of_mass
+        centric: Points = np.asarray(points, dtype=float) - self.centre_of_mass
+        return centric
 
 
-def object_frame(centres, probabilities, threshold: float) -> ObjectFrame | None:
+def object_frame(centres: ArrayLike, probabilities: ArrayLike, threshold: float
+                 ) -> ObjectFrame | None:
     """The frame of the cells whose probability exceeds ``threshold``; None if there are none."""
-    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
-    weights = np.asarray(probabilities, dtype=float).reshape(-1)
-    keep = weights > threshold
+    all_centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    all_weights = np.asarray(probabilities, dtype=float).reshape(-1)
+    keep = all_weights > threshold
     if not keep.any():
         return None
-    centres, weights = centres[keep], weights[keep]
+    occupied, weights = all_centres[keep], all_weights[keep]
     mass = float(weights.sum())
-    centre = weights @ centres / mass
-    spread = centres - centre
+    centre = weights @ occupied / mass
+    spread = occupied - centre
     covariance = (spread * weights[:, None]).T @ spread / mass
     variances, axes = np.linalg.eigh(covariance)
     order = np.argsort(variances)[::-1]

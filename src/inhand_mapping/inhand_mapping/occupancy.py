@@ -49,23 +49,26 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from inhand_common.array_types import Bools, CellFloats, CellHits, FingerIds, Floats, Points, Times
 from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.dwell import DwellWeights, WeightedSamples
 
-__all__ = ['DISTANCES', 'GridSpec', 'SensorModel', 'OccupancyGrid', 'IntegrationCounts',
+__all__ = ['DISTANCES', 'GridSpec', 'IntegrationCounts', 'OccupancyGrid', 'SensorModel',
            'logit', 'probability']
 
 DISTANCES = ('cell', 'centre')
 
 
-def logit(p):
+def logit(p: ArrayLike) -> Floats:
     p = np.asarray(p, dtype=float)
     return np.log(p / (1.0 - p))
 
 
-def probability(log_odds):
-    return 1.0 / (1.0 + np.exp(-np.asarray(log_odds, dtype=float)))
+def probability(log_odds: ArrayLike) -> Floats:
+    p: Floats = 1.0 / (1.0 + np.exp(-np.asarray(log_odds, dtype=float)))
+    return p
 
 
 @dataclass(frozen=True)
@@ -87,7 +90,7 @@ class GridSpec:
 
     @property
     def cells_per_axis(self) -> int:
-        return int(round(self.size / self.resolution))
+        return round(self.size / self.resolution)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -95,11 +98,12 @@ class GridSpec:
         return (n, n, n)
 
     @property
-    def origin(self) -> np.ndarray:
-        """Map-frame position of the outer corner of cell (0, 0, 0)."""
+    def origin(self) -> Floats:
+        """Map-frame position (3,) of the outer corner of cell (0, 0, 0)."""
         return np.asarray(self.centre, dtype=float) - self.size / 2.0
 
-    def cell_centres(self, ijk) -> np.ndarray:
+    def cell_centres(self, ijk: ArrayLike) -> Points:
+        """Map-frame centres (N, 3) of the cells with indices ``ijk`` (N, 3)."""
         return self.origin + (np.asarray(ijk, dtype=float) + 0.5) * self.resolution
 
 
@@ -138,35 +142,55 @@ class IntegrationCounts:
     outside: int = 0
     invalid: int = 0
 
-    def __add__(self, other: 'IntegrationCounts') -> 'IntegrationCounts':
+    def __add__(self, other: IntegrationCounts) -> IntegrationCounts:
         return IntegrationCounts(self.integrated + other.integrated,
                                  self.outside + other.outside, self.invalid + other.invalid)
 
 
 class OccupancyGrid:
-    """Log-odds occupancy per cell, plus hit count and first-touch time per cell."""
+    """Log-odds occupancy per cell, plus hit count and first-touch time per cell.
+
+    The (n, n, n) arrays are updated in place, never replaced: the compiled kernels work on
+    flat views of them made once, here (``cell_arrays``).
+    """
 
     def __init__(self, spec: GridSpec = GridSpec(), model: SensorModel = SensorModel()):
         self.spec = spec
         self.model = model
         self.prior_log_odds = float(logit(model.prior))
-        self.log_odds = np.full(spec.shape, self.prior_log_odds, dtype=np.float64)
-        self.hits = np.zeros(spec.shape, dtype=np.uint32)
-        self.first_touch = np.full(spec.shape, np.nan, dtype=np.float64)
-        self._probability = np.full(spec.shape, float(model.prior), dtype=np.float64)
+        self.log_odds: CellFloats = np.full(spec.shape, self.prior_log_odds, dtype=np.float64)
+        self.hits: CellHits = np.zeros(spec.shape, dtype=np.uint32)
+        self.first_touch: CellFloats = np.full(spec.shape, np.nan, dtype=np.float64)
+        self._probability: CellFloats = np.full(spec.shape, float(model.prior), dtype=np.float64)
         self.earliest_touch = math.inf  # min of first_touch, kept up to date
         self.counts = IntegrationCounts()
-        self._l_min = float(logit(model.clamp_min))
-        self._l_max = float(logit(model.clamp_max))
-        self._log_c = math.log(model.p_z_given_not_occupied)
         self._dwell = (DwellWeights(1.0 / model.evidence_rate, spec.resolution)
                        if model.evidence_rate > 0 else None)
-        self._changed_mark = np.zeros(spec.cells_per_axis ** 3, dtype=np.bool_)
-        self._visit_last = np.empty((0, spec.cells_per_axis ** 3))
-        self._visit_weight = np.empty((0, spec.cells_per_axis ** 3))
+        size = spec.cells_per_axis ** 3
+        # What the kernels are given on every call, made once: the geometry, the model in
+        # the kernel's units, and flat views of the cell arrays.
+        self.geometry = kernels.GridGeometry(
+            origin=spec.origin, resolution=float(spec.resolution),
+            inv_res=1.0 / spec.resolution, n=spec.cells_per_axis)
+        self._update_model = kernels.UpdateModel(
+            half_inv_var=spec.resolution ** 2 / (2.0 * model.sigma ** 2),
+            log_c=math.log(model.p_z_given_not_occupied),
+            reach=1 if model.neighbourhood == 27 else 0,
+            to_cell=model.distance_to == 'cell',
+            visit_gap=float(model.visit_gap),
+            l_min=float(logit(model.clamp_min)), l_max=float(logit(model.clamp_max)))
+        self.cell_arrays = kernels.CellArrays(
+            log_odds=self.log_odds.reshape(-1), probability=self._probability.reshape(-1),
+            hits=self.hits.reshape(-1), first_touch=self.first_touch.reshape(-1),
+            changed_mark=np.zeros(size, dtype=np.bool_))
+        # Per finger (rows) and cell: see kernels.Visits. Rows are added as fingers appear.
+        self._visit_last: Floats = np.empty((0, size))
+        self._visit_weight: Floats = np.empty((0, size))
+        self._visits = kernels.Visits(self._visit_last.reshape(-1), self._visit_weight.reshape(-1))
 
     # ------------------------------------------------------------------ update
-    def integrate(self, points, times=None, fingers=None) -> IntegrationCounts:
+    def integrate(self, points: ArrayLike, times: ArrayLike | None = None,
+                  fingers: ArrayLike | None = None) -> IntegrationCounts:
         """Apply eq. 4 for every point (map frame, metres), in order.
 
         ``times`` (seconds, one per point) feed the first-touch time, the dwell weights and
@@ -179,21 +203,22 @@ class OccupancyGrid:
         later call, or by ``flush()`` at the end of a stream; ``pending`` says how many.
         Returns the counts of the samples this call applied.
         """
-        points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-        count = points.shape[0]
+        positions: Points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        count = positions.shape[0]
+        stamps: Times | None = None
         if times is not None:
-            times = np.ascontiguousarray(times, dtype=np.float64).reshape(-1)
-            if times.shape[0] != count:
-                raise ValueError(f'{count} points but {times.shape[0]} times')
-        fingers = self._finger_ids(fingers, count)
-        if times is None:
+            stamps = np.ascontiguousarray(times, dtype=np.float64).reshape(-1)
+            if stamps.shape[0] != count:
+                raise ValueError(f'{count} points but {stamps.shape[0]} times')
+        finger_ids = self._finger_ids(fingers, count)
+        if stamps is None:
             # No times, no dwell: applied at once, after what is held back (order kept).
             held = self.flush()
-            return held + self._apply(WeightedSamples(points, np.empty(0), fingers,
+            return held + self._apply(WeightedSamples(positions, np.empty(0), finger_ids,
                                                       np.ones(count)), has_times=False)
         if self._dwell is None:
-            return self._apply(WeightedSamples(points, times, fingers, np.ones(count)))
-        return self._apply(self._dwell.push(points, times, fingers))
+            return self._apply(WeightedSamples(positions, stamps, finger_ids, np.ones(count)))
+        return self._apply(self._dwell.push(positions, stamps, finger_ids))
 
     def flush(self) -> IntegrationCounts:
         """Apply the samples held back for their dwell weights (the end of a stream: a bag
@@ -208,40 +233,35 @@ class OccupancyGrid:
         return 0 if self._dwell is None else self._dwell.pending
 
     def _apply(self, samples: WeightedSamples, has_times: bool = True) -> IntegrationCounts:
-        points, times, fingers, weights = samples
-        count = points.shape[0]
-        spec, model = self.spec, self.model
+        count = samples.points.shape[0]   # not samples.count: without times, times is empty
         # Visits need times; without them the kernel never reads the (then empty) state.
-        visit_last, visit_weight = self._visit_state(
-            int(fingers.max()) + 1 if has_times and count else 0)
+        visits = self._visit_state(int(samples.fingers.max()) + 1 if has_times and count else 0)
+        batch = kernels.SampleBatch(
+            points=np.ascontiguousarray(samples.points), times=np.ascontiguousarray(samples.times),
+            has_times=has_times, fingers=np.ascontiguousarray(samples.fingers, dtype=np.int64),
+            weights=np.ascontiguousarray(samples.weights))
+        # Room for every cell whose neighbourhood changes (at most one per sample).
+        changed = np.empty(min(count, self.log_odds.size), dtype=np.int64)
         integrated, outside, invalid, earliest = kernels.integrate(
-            np.ascontiguousarray(points), np.ascontiguousarray(times), has_times,
-            np.ascontiguousarray(fingers, dtype=np.int64), np.ascontiguousarray(weights),
-            spec.origin, 1.0 / spec.resolution,
-            spec.cells_per_axis, spec.resolution ** 2 / (2.0 * model.sigma ** 2), self._log_c,
-            1 if model.neighbourhood == 27 else 0, 1 if model.distance_to == 'cell' else 0,
-            model.visit_gap, visit_last, visit_weight, self.log_odds.reshape(-1),
-            self._probability.reshape(-1), self.hits.reshape(-1),
-            self.first_touch.reshape(-1), self._l_min, self._l_max,
-            np.empty(min(count, self.log_odds.size), dtype=np.int64), self._changed_mark)
+            batch, self.geometry, self._update_model, self.cell_arrays, visits, changed)
         self.earliest_touch = min(self.earliest_touch, float(earliest))
-        batch = IntegrationCounts(integrated=int(integrated), outside=int(outside),
-                                  invalid=int(invalid))
-        self.counts = self.counts + batch
-        return batch
+        applied = IntegrationCounts(integrated=int(integrated), outside=int(outside),
+                                    invalid=int(invalid))
+        self.counts = self.counts + applied
+        return applied
 
     @staticmethod
-    def _finger_ids(fingers, count: int) -> np.ndarray:
+    def _finger_ids(fingers: ArrayLike | None, count: int) -> FingerIds:
         if fingers is None:
             return np.zeros(count, dtype=np.int64)
-        fingers = np.asarray(fingers).reshape(-1)
-        if fingers.shape[0] != count:
-            raise ValueError(f'{count} points but {fingers.shape[0]} finger ids')
-        if count and (not np.issubdtype(fingers.dtype, np.integer) or fingers.min() < 0):
+        ids = np.asarray(fingers).reshape(-1)
+        if ids.shape[0] != count:
+            raise ValueError(f'{count} points but {ids.shape[0]} finger ids')
+        if count and (not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0):
             raise ValueError('finger ids must be non-negative integers')
-        return np.ascontiguousarray(fingers, dtype=np.int64)
+        return np.ascontiguousarray(ids, dtype=np.int64)
 
-    def _visit_state(self, fingers: int) -> tuple[np.ndarray, np.ndarray]:
+    def _visit_state(self, fingers: int) -> kernels.Visits:
         """Per finger and cell: when the finger was last there, and how much its current
         visit has given. Grown when a new finger id appears."""
         have = self._visit_last.shape[0]
@@ -251,7 +271,9 @@ class OccupancyGrid:
                 [self._visit_last, np.full((fingers - have, size), -np.inf)])
             self._visit_weight = np.concatenate(
                 [self._visit_weight, np.zeros((fingers - have, size))])
-        return self._visit_last.reshape(-1), self._visit_weight.reshape(-1)
+            self._visits = kernels.Visits(self._visit_last.reshape(-1),
+                                          self._visit_weight.reshape(-1))
+        return self._visits
 
     def reset(self) -> None:
         self.log_odds.fill(self.prior_log_odds)
@@ -266,7 +288,7 @@ class OccupancyGrid:
             self._dwell.reset()   # the samples held back go too
 
     # ------------------------------------------------------------------ queries
-    def probabilities(self) -> np.ndarray:
+    def probabilities(self) -> CellFloats:
         """Occupancy probability of every cell (read-only; kept current by each update)."""
         view = self._probability.view()
         view.flags.writeable = False
@@ -278,11 +300,13 @@ class OccupancyGrid:
         finite = self.first_touch[np.isfinite(self.first_touch)]
         self.earliest_touch = float(finite.min()) if finite.size else math.inf
 
-    def touched_mask(self) -> np.ndarray:
+    def touched_mask(self) -> Bools:
         """Cells any measurement has updated (their log-odds left the prior, or were hit)."""
-        return (self.log_odds != self.prior_log_odds) | (self.hits > 0)
+        touched: Bools = (self.log_odds != self.prior_log_odds) | (self.hits > 0)
+        return touched
 
-    def cells(self, mask: np.ndarray | None = None, threshold: float | None = None):
+    def cells(self, mask: Bools | None = None, threshold: float | None = None
+              ) -> tuple[Points, Floats, CellHits, Times]:
         """(centres (M, 3), probabilities (M,), hits (M,), first touch (M,)) of the cells in
         ``mask`` (default: touched) and, if given, with probability above ``threshold``."""
         if mask is None:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import functools
 import struct
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 

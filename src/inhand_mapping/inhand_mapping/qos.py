@@ -1,4 +1,4 @@
-"""QoS profiles and the frame name shared by the mapping nodes.
+"""QoS profiles shared by the mapping nodes.
 
 The data path (poses in, registered points between the nodes) is reliable with KEEP_ALL
 history: a reliable KEEP_ALL reader only acknowledges what it has room for, so a fast
@@ -9,10 +9,9 @@ late subscriber gets the latest one.
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ['DATA_QOS', 'LATCHED_QOS', 'MAP_FRAME']
+__all__ = ['DATA_QOS', 'LATCHED_QOS']
 
 DATA_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
                       reliability=ReliabilityPolicy.RELIABLE)
 LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-MAP_FRAME = 'object'

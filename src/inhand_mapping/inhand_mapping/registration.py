@@ -64,13 +64,27 @@ Python loop per point.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import NamedTuple, TypeAlias
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from inhand_common.array_types import (
+    Bools,
+    Counts,
+    Matrices,
+    Points,
+    Quaternions,
+    Rows,
+    StationIds,
+    Times,
+    Vector3,
+)
 from inhand_common.rotations import quaternion_to_matrix, slerp
 
-__all__ = ['MODES', 'RegistrationStats', 'Registrar']
+__all__ = ['MODES', 'Registrar', 'RegistrationStats']
 
 MODES = ('tracked', 'static')
 
@@ -82,6 +96,9 @@ HISTORY_SECONDS = 1.0
 _BLOCK = 16384
 
 _IDENTITY_POSE = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+
+# Registered fingertips: (points (M, 3) in the map frame, times (M,), fingers (M,)).
+Registered: TypeAlias = tuple[Points, Times, StationIds]
 
 
 @dataclass
@@ -99,8 +116,58 @@ class RegistrationStats:
     object_invalid: int = 0  # object poses ignored: NaN/inf or zero-norm quaternion
 
 
-def _empty_result() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _empty_result() -> Registered:
     return np.empty((0, 3)), np.empty(0), np.empty(0, dtype=np.int32)
+
+
+class _Fingertips(NamedTuple):
+    """Fingertip rows waiting to be registered, all N long."""
+
+    times: Times           # (N,) sensor seconds
+    positions: Points      # (N, 3) tracker frame
+    fingers: StationIds    # (N,)
+    arrivals: Times        # (N,) the ``now`` they arrived at (NaN without a clock)
+
+    @property
+    def size(self) -> int:
+        return self.times.size
+
+    def part(self, rows: slice | Bools | Rows) -> _Fingertips:
+        return _Fingertips(self.times[rows], self.positions[rows], self.fingers[rows],
+                           self.arrivals[rows])
+
+
+class _Stamps(NamedTuple):
+    """The distinct stamps of a time-ordered batch. All stations of one tracker frame share
+    a stamp, so there are several points per stamp, and everything about the object pose
+    is decided once per stamp, then applied to the points."""
+
+    times: Times          # (U,) the distinct stamps, ascending
+    of_point: Rows   # (N,) each point's stamp: an index into ``times``
+    points: Counts   # (U,) how many points have each stamp
+
+    @classmethod
+    def of(cls, times: Times) -> _Stamps:
+        n = times.size
+        new_stamp = np.empty(n, dtype=bool)
+        new_stamp[0] = True
+        np.not_equal(times[1:], times[:-1], out=new_stamp[1:])
+        return cls(times=times[new_stamp], of_point=np.cumsum(new_stamp) - 1,
+                   points=np.diff(np.append(np.flatnonzero(new_stamp), n)))
+
+
+class _PoseMatch(NamedTuple):
+    """Where each stamp falls in the object-pose history: one flag array per outcome, (U,).
+    Every stamp is exactly one of: ``resolved`` (``exact`` or ``interpolate``), ``later``,
+    ``before_first`` or ``gap``."""
+
+    at_or_after: Rows  # the first object pose at or after the stamp (the newest if none)
+    later: Bools            # newer than the newest object pose: wait for the next one
+    exact: Bools            # an object pose has exactly this stamp
+    interpolate: Bools      # between two object poses at most max_gap apart
+    resolved: Bools         # exact or interpolate: the object pose is known
+    before_first: Bools     # before the first object pose ever received
+    gap: Bools              # across a longer gap, or before the history kept
 
 
 class Registrar:
@@ -116,7 +183,7 @@ class Registrar:
     """
 
     def __init__(self, mode: str = 'tracked', max_gap: float = 0.05,
-                 max_pending: float = 1.0, fingers=()):
+                 max_pending: float = 1.0, fingers: Iterable[int] = ()):
         if mode not in MODES:
             raise ValueError(f"registration mode must be one of {MODES}, got {mode!r}")
         for name, value in (('max_gap', max_gap), ('max_pending', max_pending)):
@@ -128,16 +195,15 @@ class Registrar:
         self.stats = RegistrationStats()
         # Object-pose history: growable arrays, the first _n_obj rows in use, time-ordered.
         capacity = 1024
-        self._obj_t = np.empty(capacity)
-        self._obj_p = np.empty((capacity, 3))
-        self._obj_q = np.empty((capacity, 4))
+        self._obj_t: Times = np.empty(capacity)
+        self._obj_p: Points = np.empty((capacity, 3))
+        self._obj_q: Quaternions = np.empty((capacity, 4))
         self._n_obj = 0
-        self._first_pose: tuple[np.ndarray, np.ndarray] | None = None
+        self._first_pose: tuple[Vector3, Quaternions] | None = None
         self._first_t = math.nan
         self._latest_t = -math.inf
-        # Fingertips waiting: chunks (times, positions, fingers, arrival times) appended by
-        # add_fingertips, merged (time-sorted) by drain.
-        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        # Fingertips waiting: chunks appended by add_fingertips, merged (time-sorted) by drain.
+        self._chunks: list[_Fingertips] = []
         self._n_pending = 0
         self._pending_min_t = math.inf
         # Per finger stream: [newest stamp, arrival (now) of it or nan].
@@ -150,7 +216,7 @@ class Registrar:
 
     # ------------------------------------------------------------------ inputs
     @property
-    def first_object_pose(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def first_object_pose(self) -> tuple[Vector3, Quaternions] | None:
         """The map frame's pose in the tracker frame: (position (3,), quaternion xyzw (4,)).
 
         Tracked mode: the object sensor's first pose, or None before it arrives. Static mode:
@@ -162,7 +228,7 @@ class Registrar:
             return None
         return self._first_pose[0].copy(), self._first_pose[1].copy()
 
-    def add_object_pose(self, t: float, position, quaternion_xyzw) -> None:
+    def add_object_pose(self, t: float, position: ArrayLike, quaternion_xyzw: ArrayLike) -> None:
         """Record the object sensor's pose at time ``t`` (seconds). Ignored in static mode.
 
         Poses must come in time order; a pose not newer than the newest one is ignored and
@@ -195,7 +261,8 @@ class Registrar:
             self._first_pose = (p.copy(), q.copy())
             self._first_t = t
 
-    def add_fingertips(self, t, positions, fingers, now: float | None = None) -> None:
+    def add_fingertips(self, t: ArrayLike, positions: ArrayLike, fingers: ArrayLike,
+                       now: float | None = None) -> None:
         """Buffer fingertip positions: ``t`` (N,) seconds, ``positions`` (N, 3), ``fingers`` (N,).
 
         A scalar ``t`` or ``fingers`` applies to every row; one position may be given as (3,).
@@ -209,10 +276,10 @@ class Registrar:
             raise ValueError(f'positions must have shape (N, 3), got {np.shape(positions)}')
         n = pos.shape[0]
         times = np.broadcast_to(np.asarray(t, dtype=float), (n,))
-        fing = np.broadcast_to(np.asarray(fingers), (n,))
-        if fing.size and not np.issubdtype(fing.dtype, np.integer):
-            raise ValueError(f'fingers must be integers (station numbers), got {fing.dtype}')
-        fing = fing.astype(np.int32)
+        given = np.broadcast_to(np.asarray(fingers), (n,))
+        if given.size and not np.issubdtype(given.dtype, np.integer):
+            raise ValueError(f'fingers must be integers (station numbers), got {given.dtype}')
+        fing = given.astype(np.int32)
         self.stats.received += n
         if n == 0:
             return
@@ -229,7 +296,7 @@ class Registrar:
         if now is not None:
             self._clock = float(now)
         arrival = np.full(times.size, math.nan if now is None else float(now))
-        self._chunks.append((times, pos, fing, arrival))
+        self._chunks.append(_Fingertips(times, pos, fing, arrival))
         self._n_pending += times.size
         self._pending_min_t = min(self._pending_min_t, float(times.min()))
         for finger in np.unique(fing).tolist():
@@ -242,7 +309,7 @@ class Registrar:
         self._set_pending()
 
     # ------------------------------------------------------------------ outputs
-    def drain(self, now: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def drain(self, now: float | None = None) -> Registered:
         """Registered (points (M, 3) in the map frame, times (M,), fingers (M,)), time-ordered.
 
         Returns every buffered fingertip up to the watermark that can be resolved now,
@@ -251,7 +318,7 @@ class Registrar:
         """
         return self._resolve(final=False, now=now)
 
-    def finish(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def finish(self) -> Registered:
         """End of input: register what can be, drop the rest (nothing is extrapolated)."""
         return self._resolve(final=True, now=None)
 
@@ -259,28 +326,32 @@ class Registrar:
     def _set_pending(self) -> None:
         self.stats.pending = self._n_pending
 
-    def _take_pending(self):
+    def _take_pending(self) -> _Fingertips:
         chunks, self._chunks = self._chunks, []
         self._n_pending = 0
         if not chunks:
-            return (np.empty(0), np.empty((0, 3)), np.empty(0, dtype=np.int32), np.empty(0))
+            return _Fingertips(np.empty(0), np.empty((0, 3)), np.empty(0, dtype=np.int32),
+                               np.empty(0))
         if len(chunks) == 1:
-            t, p, f, a = chunks[0]
+            batch = chunks[0]
         else:
-            t, p, f, a = (np.concatenate([c[k] for c in chunks]) for k in range(4))
+            batch = _Fingertips(np.concatenate([c.times for c in chunks]),
+                                np.concatenate([c.positions for c in chunks]),
+                                np.concatenate([c.fingers for c in chunks]),
+                                np.concatenate([c.arrivals for c in chunks]))
+        t = batch.times
         if t.size > 1 and (len(chunks) > 1 or np.any(t[1:] <= t[:-1])):
             # By time, then finger: the output order (and so the map, to the last bit of
             # its sums) does not depend on the order the topics were delivered in.
-            order = np.lexsort((f, t))
-            t, p, f, a = t[order], p[order], f[order], a[order]
-        return t, p, f, a
+            batch = batch.part(np.lexsort((batch.fingers, t)))
+        return batch
 
-    def _keep_waiting(self, *parts) -> None:
-        """Keep these (times, positions, fingers, arrivals) tuples waiting, time-ordered."""
-        parts = [part for part in parts if part[0].size]
-        self._chunks = parts
-        self._n_pending = sum(part[0].size for part in parts)
-        self._pending_min_t = min((float(part[0].min()) for part in parts), default=math.inf)
+    def _keep_waiting(self, *parts: _Fingertips) -> None:
+        """Keep these fingertips waiting, time-ordered."""
+        kept = [part for part in parts if part.size]
+        self._chunks = kept
+        self._n_pending = sum(part.size for part in kept)
+        self._pending_min_t = min((float(part.times.min()) for part in kept), default=math.inf)
 
     def _watermark(self, now: float | None) -> float:
         """Oldest newest-stamp of the finger streams still delivering (see the module doc)."""
@@ -296,113 +367,136 @@ class Registrar:
                   if now is None or math.isnan(arrival) or now - arrival <= self.max_pending]
         return min(newest) if newest else math.inf
 
-    def _stale(self, arrival: np.ndarray, now: float | None) -> np.ndarray:
+    def _stale(self, arrival: Times, now: float | None) -> Bools:
         """Fingertips that have waited longer than max_pending (never, without a clock)."""
         if now is None:
             return np.zeros(arrival.size, dtype=bool)
         with np.errstate(invalid='ignore'):
-            return now - arrival > self.max_pending
+            stale: Bools = now - arrival > self.max_pending
+        return stale
 
-    def _resolve(self, final: bool, now: float | None):
-        t, p, f, a = self._take_pending()
+    def _resolve(self, final: bool, now: float | None) -> Registered:
+        """What drain and finish do: register what can be, keep what may still be, drop the
+        rest (each counted)."""
+        batch = self._take_pending()
         if now is not None:
             self._clock = float(now)
-            if math.isnan(self._data_since) and (t.size or self._n_obj):
+            if math.isnan(self._data_since) and (batch.size or self._n_obj):
                 self._data_since = float(now)
-        held = (t[:0], p[:0], f[:0], a[:0])
-        if not final and t.size:
+        held = batch.part(slice(0, 0))
+        if not final and batch.size:
             # Only up to the watermark: a later point may still be preceded by another's.
-            watermark = self._watermark(now)
-            cut = int(np.searchsorted(t, watermark, side='right'))
-            held = (t[cut:], p[cut:], f[cut:], a[cut:])
-            t, p, f, a = t[:cut], p[:cut], f[:cut], a[:cut]
-        if t.size == 0:
+            cut = int(np.searchsorted(batch.times, self._watermark(now), side='right'))
+            batch, held = batch.part(slice(None, cut)), batch.part(slice(cut, None))
+        if batch.size == 0:
             self._keep_waiting(held)
             self._set_pending()
             self._trim_history(now)
             return _empty_result()
-
         if self.mode == 'static':
-            self.stats.registered += t.size
+            # The map frame is the tracker frame: nothing to pair.
+            self.stats.registered += batch.size
             self._keep_waiting(held)
             self._set_pending()
-            return p, t, f
-
-        n_obj = self._n_obj
-        if n_obj == 0:
-            # No object pose yet: everything waits (or, at the end, was before the object).
-            waiting = np.zeros(t.size, dtype=bool) if final else ~self._stale(a, now)
-            self.stats.dropped_before_object += int(t.size - np.count_nonzero(waiting))
-            self._keep_waiting((t[waiting], p[waiting], f[waiting], a[waiting]), held)
-            self._set_pending()
+            return batch.positions, batch.times, batch.fingers
+        if self._n_obj == 0:
+            self._wait_for_first_object_pose(batch, held, final, now)
             return _empty_result()
+        return self._register_tracked(batch, held, final, now)
 
-        # Everything is decided per distinct stamp (all stations of a tracker frame share
-        # one, so there are several points per stamp), then applied to the points.
-        n = t.size
-        new_stamp = np.empty(n, dtype=bool)
-        new_stamp[0] = True
-        np.not_equal(t[1:], t[:-1], out=new_stamp[1:])
-        stamp_of = np.cumsum(new_stamp) - 1  # index of each point's stamp in ut
-        ut = t[new_stamp]
+    def _wait_for_first_object_pose(self, batch: _Fingertips, held: _Fingertips, final: bool,
+                                    now: float | None) -> None:
+        """No object pose yet: everything waits, except what has waited too long, or
+        everything at the end of the input (it was before the object)."""
+        waiting = np.zeros(batch.size, dtype=bool) if final else ~self._stale(batch.arrivals, now)
+        self.stats.dropped_before_object += int(batch.size - np.count_nonzero(waiting))
+        self._keep_waiting(batch.part(waiting), held)
+        self._set_pending()
 
+    def _register_tracked(self, batch: _Fingertips, held: _Fingertips, final: bool,
+                          now: float | None) -> Registered:
+        """Pair a time-ordered batch with the object poses: register the resolved points,
+        keep the later ones waiting, drop and count the rest."""
+        stamps = _Stamps.of(batch.times)
+        match = self._match_object_poses(stamps.times)
+        # Before the first pose ever, before the history kept, or across a long gap: these
+        # will never resolve.
+        self.stats.dropped_before_object += int(stamps.points[match.before_first].sum())
+        self.stats.dropped_gap += int(stamps.points[match.gap].sum())
+        out = self._to_object_frame(batch, stamps, match)
+        self._keep_later_waiting(batch, held, match.later[stamps.of_point], final, now)
+        self._trim_history(now)
+        return out
+
+    def _match_object_poses(self, stamps: Times) -> _PoseMatch:
+        """Where each stamp (ascending) falls among the object poses kept (see the module
+        docstring: same stamp, between two close poses, later, before the first, a gap)."""
+        n_obj = self._n_obj
         obj_t = self._obj_t[:n_obj]
-        j = np.searchsorted(obj_t, ut, side='left')  # first object pose at or after the stamp
-        later = j == n_obj  # newer than the newest object pose: wait
-        jc = np.minimum(j, n_obj - 1)
-        t_hi = obj_t[jc]
-        exact = t_hi == ut  # never true for `later` ones (t_hi < ut there)
-        lo = np.maximum(j - 1, 0)
-        gap_ok = ~exact & ~later & (j > 0) & (t_hi - obj_t[lo] <= self.max_gap)
-        resolved = exact | gap_ok
-        before_first = ut < self._first_t
-        # Left: before the first pose ever, before the history kept, or across a long gap.
-        gap = ~later & ~resolved & ~before_first
-        counts = np.diff(np.append(np.flatnonzero(new_stamp), n))  # points per stamp
-        self.stats.dropped_before_object += int(counts[before_first].sum())
-        self.stats.dropped_gap += int(counts[gap].sum())
+        after = np.searchsorted(obj_t, stamps, side='left')
+        later = after == n_obj
+        at_or_after = np.minimum(after, n_obj - 1)
+        t_after = obj_t[at_or_after]
+        exact = t_after == stamps  # never true for `later` ones (t_after < stamp there)
+        t_before = obj_t[np.maximum(after - 1, 0)]
+        interpolate = ~exact & ~later & (after > 0) & (t_after - t_before <= self.max_gap)
+        resolved = exact | interpolate
+        before_first = stamps < self._first_t
+        return _PoseMatch(at_or_after=at_or_after, later=later, exact=exact,
+                          interpolate=interpolate, resolved=resolved, before_first=before_first,
+                          gap=~later & ~resolved & ~before_first)
 
-        # The object pose at each resolvable stamp: exact, or interpolated (lerp + slerp).
-        ures = np.flatnonzero(resolved)
-        if ures.size:
-            rot, pos = self._object_poses_at(ut[ures], jc[ures], gap_ok[ures])
-            # Row vectors: (R^T d)^T = d^T R.
-            per_stamp = n // ut.size
-            if ures.size == ut.size and per_stamp * ut.size == n and np.all(counts == per_stamp):
-                # The usual case: every stamp resolves and has the same number of stations,
-                # so the points reshape to (stamps, stations, 3) and nothing is gathered.
-                d = p.reshape(ut.size, per_stamp, 3) - pos[:, None, :]
-                points = (d @ rot).reshape(n, 3)
-                take = slice(None)
-            else:
-                slot = np.full(ut.size, -1)
-                slot[ures] = np.arange(ures.size)
-                which = slot[stamp_of]
-                take = np.flatnonzero(which >= 0)
-                which = which[take]
-                d = p[take] - pos[which]
-                points = (d[:, None, :] @ rot[which])[:, 0, :]
-            out = (points, t[take], f[take])
-            self.stats.registered += points.shape[0]
+    def _to_object_frame(self, batch: _Fingertips, stamps: _Stamps, match: _PoseMatch
+                         ) -> Registered:
+        """The points whose stamp resolved, in the object (map) frame: R_o^T (p - t_o), with
+        the object pose at each stamp exact or interpolated (lerp + slerp)."""
+        resolvable = np.flatnonzero(match.resolved)
+        if resolvable.size == 0:
+            return _empty_result()
+        rot, pos = self._object_poses_at(stamps.times[resolvable], match.at_or_after[resolvable],
+                                         match.interpolate[resolvable])
+        # Row vectors: (R^T d)^T = d^T R.
+        n, n_stamps = batch.size, stamps.times.size
+        per_stamp = n // n_stamps
+        if (resolvable.size == n_stamps and per_stamp * n_stamps == n
+                and np.all(stamps.points == per_stamp)):
+            # The usual case: every stamp resolves and has the same number of stations,
+            # so the points reshape to (stamps, stations, 3) and nothing is gathered.
+            d = batch.positions.reshape(n_stamps, per_stamp, 3) - pos[:, None, :]
+            points = (d @ rot).reshape(n, 3)
+            taken = batch
         else:
-            out = _empty_result()
+            # Each point's row in rot / pos, or -1 where its stamp did not resolve.
+            slot = np.full(n_stamps, -1)
+            slot[resolvable] = np.arange(resolvable.size)
+            which = slot[stamps.of_point]
+            take = np.flatnonzero(which >= 0)
+            which = which[take]
+            taken = batch.part(take)
+            d = taken.positions - pos[which]
+            points = (d[:, None, :] @ rot[which])[:, 0, :]
+        self.stats.registered += points.shape[0]
+        return points, taken.times, taken.fingers
 
-        # Still waiting: later than the newest object pose, unless the input has ended or
-        # the point has waited longer than max_pending (the object stream stalled).
-        wait = later[stamp_of]
+    def _keep_later_waiting(self, batch: _Fingertips, held: _Fingertips, later: Bools,
+                            final: bool, now: float | None) -> None:
+        """Points later than the newest object pose wait for the next one, unless the input
+        has ended or the point has waited longer than max_pending (the object stream
+        stalled): then they are dropped as across a gap. ``held`` (past the watermark) waits
+        too."""
+        wait = later
         if final:
             self.stats.dropped_gap += int(np.count_nonzero(wait))
             wait[:] = False
         else:
-            stalled = wait & self._stale(a, now)
+            stalled = wait & self._stale(batch.arrivals, now)
             self.stats.dropped_gap += int(np.count_nonzero(stalled))
             wait &= ~stalled
-        self._keep_waiting((t[wait], p[wait], f[wait], a[wait]), held)
+        self._keep_waiting(batch.part(wait), held)
         self._set_pending()
-        self._trim_history(now)
-        return out
 
-    def _object_poses_at(self, times, k, interpolate):
+    def _object_poses_at(self, times: Times, k: Rows, interpolate: Bools
+                         ) -> tuple[Matrices, Points]:
         """Rotation matrices (U, 3, 3) and positions (U, 3) of the object at ``times``.
 
         ``k`` is the object pose at or after each time; where ``interpolate`` is False it is

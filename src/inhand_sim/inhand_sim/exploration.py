@@ -40,13 +40,12 @@ sample.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 
 from inhand_common.rotations import quaternion_conjugate, rotate_vectors
-
 from inhand_sim.objects import HeldRegion, ObjectModel
 
 __all__ = [
@@ -83,7 +82,7 @@ class ExplorationSettings:
     fingertip_radius: float = 0.007              # a fingertip ball of this radius ...
     fingertip_fit: float = 0.6                   # ... must fit this much at a contact (no narrow creases)
     max_turns: int = 8                           # a stroke turns aside at obstacles this often, then ends
-    table_reach: float = 0.02                    # static: downward faces this close to the table are out of reach
+    table_reach: float = 0.02                    # static: downward faces this near the table are out of reach
     clearance: float = 0.006                     # every off-surface sample at least this far
     transit_height_range: tuple = (0.01, 0.02)   # how high a finger lifts to move elsewhere
     transit_speed: float = 0.35                  # mean speed of a transit, m/s
@@ -255,7 +254,7 @@ def _build_pool(obj: ObjectModel, held: HeldRegion, table: bool, settings: Explo
     starts, normals = starts[:st.pool_size], normals[:st.pool_size]
     s_count = len(starts)
     max_len = st.stroke_duration_range[1] * st.speed_range[1] * (1.0 + st.speed_variation)
-    k_steps = int(math.ceil(max_len / st.stroke_step))
+    k_steps = math.ceil(max_len / st.stroke_step)
     modes = rng.choice(len(_MODES), size=s_count, p=np.asarray(st.mode_probabilities))
     heading = _normalize(np.cross(normals, rng.normal(size=(s_count, 3))))
     up = np.array([0.0, 0.0, 1.0])
@@ -394,9 +393,16 @@ def _slide_path(obj: ObjectModel, surroundings, held, table, settings, a, b):
 
 
 # --- the timeline ------------------------------------------------------------------------
+#
+# Each finger's timeline is a list of segments planned one move at a time, always for the
+# finger furthest behind (so that the fingers draw from the shared random stream and stroke
+# pools in time order). Only then are the segments evaluated at the tracker frames, all
+# frames of a segment at once.
 
 @dataclass
 class _Segment:
+    """A stretch of one finger's timeline: from ``t0`` to ``t1`` it does ``kind`` at the
+    positions ``fn`` gives (contacts are projected onto the surface when sampled)."""
     t0: float
     t1: float
     kind: str                                   # stroke, dwell, transit, lift, away
@@ -405,34 +411,90 @@ class _Segment:
     stroke_id: int = -1
 
 
-def _stroke_segments(pool: _StrokePool, index: int, t0: float, duration: float, speed: float,
-                     settings: ExplorationSettings, rng, stroke_id: int,
-                     limit: float) -> tuple[list, float, np.ndarray, np.ndarray]:
-    """Segments of one stroke (with its involuntary lifts) starting at ``t0``, ending by
-    ``limit``. Returns (segments, end time, last contact point, its normal)."""
-    st = settings
-    n_valid = pool.lengths[index] + 1
-    path = pool.paths[index, :n_valid]
-    normals = pool.normals[index, :n_valid]
-    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
-    total = cum[-1]
-    omega = 2 * math.pi / rng.uniform(1.5, 4.0)
-    phase = rng.uniform(0, 2 * math.pi)
-    amp = st.speed_variation
+def _stay_at(point: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Positions of a fingertip resting at ``point``."""
+    return lambda times: np.repeat(point[None], len(times), axis=0)
 
-    def arc(tau):
-        """Arc length slid after ``tau`` s of sliding: speed v (1 + amp sin(omega tau + phase))."""
+
+def _slide_along(path: np.ndarray, t0: float, t1: float) -> Callable[[np.ndarray], np.ndarray]:
+    """Positions sliding along ``path`` at constant speed, from its start at ``t0`` to its
+    end at ``t1``."""
+    return lambda times: _polyline_at(path, (times - t0) / max(t1 - t0, 1e-9))
+
+
+def _lift_bump(point: np.ndarray, normal: np.ndarray, side: np.ndarray, t0: float,
+               duration: float, height: float, low: float) -> Callable[[np.ndarray], np.ndarray]:
+    """Positions of an involuntary lift above the contact ``point``: up along ``normal`` from
+    ``low`` to ``height`` and back down in a sine bump over ``duration`` from ``t0``, drifting
+    by ``side`` at the top (``low`` keeps the lift's ends clear of the surface)."""
+    def fn(times):
+        bump = np.sin(np.pi * np.clip((times - t0) / duration, 0.0, 1.0))
+        return point + (low + (height - low) * bump)[:, None] * normal + bump[:, None] * side
+    return fn
+
+
+# --- one stroke: sliding with involuntary lifts -------------------------------------------
+
+class _StrokeTrack:
+    """One stroke of the pool and how the fingertip slides along it: after ``tau`` s of
+    sliding it has covered ``arc(tau)`` of the path, at a speed ``v (1 + amp sin(omega tau +
+    phase))`` (``amp`` the settings' speed variation; period and phase drawn per stroke),
+    and it stops at the path's end."""
+
+    def __init__(self, pool: _StrokePool, index: int, speed: float,
+                 settings: ExplorationSettings, rng: np.random.Generator):
+        n_valid = pool.lengths[index] + 1
+        self.path = pool.paths[index, :n_valid]
+        self.normals = pool.normals[index, :n_valid]
+        self.cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.path, axis=0), axis=1))])
+        self.total = self.cum[-1]
+        self.speed = speed
+        self.omega = 2 * math.pi / rng.uniform(1.5, 4.0)
+        self.phase = rng.uniform(0, 2 * math.pi)
+        self.amp = settings.speed_variation
+
+    def arc(self, tau):
+        """Arc length slid after ``tau`` s of sliding (the integral of the speed)."""
         tau = np.asarray(tau, dtype=float)
-        s = speed * (tau + amp / omega * (math.cos(phase) - np.cos(omega * tau + phase)))
-        return np.minimum(s, total)
+        s = self.speed * (tau + self.amp / self.omega
+                          * (math.cos(self.phase) - np.cos(self.omega * tau + self.phase)))
+        return np.minimum(s, self.total)
 
-    def at_arc(s):
-        return np.stack([np.interp(s, cum, path[:, k]) for k in range(3)], axis=1)
+    def at_arc(self, s) -> np.ndarray:
+        """Points at arc lengths ``s`` along the path."""
+        return np.stack([np.interp(s, self.cum, self.path[:, k]) for k in range(3)], axis=1)
 
-    # Sliding time needed to cover the path, capped by the planned duration.
-    taus = np.linspace(0.0, duration, 2000)
-    active = float(taus[min(int(np.searchsorted(arc(taus), total)), len(taus) - 1)])
-    # Involuntary lift episodes at random moments of the stroke.
+    def sliding_time(self, planned: float) -> float:
+        """Sliding time needed to cover the path, capped by the planned duration (resolved
+        to 1/2000 of it)."""
+        taus = np.linspace(0.0, planned, 2000)
+        return float(taus[min(int(np.searchsorted(self.arc(taus), self.total)), len(taus) - 1)])
+
+    def sliding_from(self, t0: float, tau0: float) -> Callable[[np.ndarray], np.ndarray]:
+        """Positions from ``t0`` on, the fingertip having slid ``tau0`` s by then."""
+        return lambda times: self.at_arc(self.arc(tau0 + (times - t0)))
+
+    def contact_at(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """Where the fingertip is after ``tau`` s of sliding, and the surface normal there
+        (that of the next path point)."""
+        point = self.at_arc(self.arc(np.array([tau])))[0]
+        i = min(int(np.searchsorted(self.cum, float(self.arc(tau)))), len(self.path) - 1)
+        return point, self.normals[i]
+
+
+@dataclass
+class _LiftEpisode:
+    """Involuntary lifts at one place of a stroke: 1, or sometimes a few in a row."""
+    tau: float              # sliding time into the stroke at which the fingertip lifts
+    lateral: np.ndarray     # (3,) sideways drift at the top (its part along the normal is dropped)
+    lifts: list             # (duration, height, touch-down time) of each lift, in order
+
+
+def _draw_lift_episodes(active: float, settings: ExplorationSettings,
+                        rng: np.random.Generator) -> list[_LiftEpisode]:
+    """Lift episodes at random moments of ``active`` s of sliding (Poisson, away from the
+    stroke's first and last tenth), in time order."""
+    st = settings
     episodes = []
     for tau_l in np.sort(rng.uniform(0.1 * active, 0.9 * active, rng.poisson(st.lift_rate * active))):
         reps = 1
@@ -441,48 +503,345 @@ def _stroke_segments(pool: _StrokePool, index: int, t0: float, duration: float, 
         height = rng.uniform(*st.lift_height_range)
         lateral = rng.normal(0.0, 0.002, 3)
         lifts = [(rng.uniform(*st.lift_duration_range), height + rng.normal(0.0, 0.0015),
-                  rng.uniform(0.08, 0.2)) for _ in range(reps)]  # (duration, height, touch)
-        episodes.append((float(tau_l), lateral, lifts))
+                  rng.uniform(0.08, 0.2)) for _ in range(reps)]
+        episodes.append(_LiftEpisode(float(tau_l), lateral, lifts))
+    return episodes
 
-    def slide(ta, tau_a):
-        return lambda times: at_arc(arc(tau_a + (times - ta)))
 
-    def hold(p):
-        return lambda times: np.repeat(p[None], len(times), axis=0)
+def _lifts_in_place(track: _StrokeTrack, episode: _LiftEpisode, t: float, limit: float,
+                    stroke_id: int, low: float) -> tuple[list[_Segment], float]:
+    """The segments of one lift episode starting at ``t``, and the time after it: each lift
+    goes off the surface and comes back down at the same place for a moment (the sliding
+    time stays frozen). Lifts that would not be back before ``limit`` are left out."""
+    point, normal = track.contact_at(episode.tau)
+    side = episode.lateral - np.dot(episode.lateral, normal) * normal
+    segments = []
+    for dur, height, touch in episode.lifts:
+        if t + dur + touch >= limit:
+            break
+        segments.append(_Segment(t, t + dur, 'lift',
+                                 _lift_bump(point, normal, side, t, dur, max(height, low), low), False))
+        segments.append(_Segment(t + dur, t + dur + touch, 'stroke', _stay_at(point), True, stroke_id))
+        t += dur + touch
+    return segments, t
 
+
+def _slide_with_lifts(track: _StrokeTrack, episodes: list[_LiftEpisode], active: float, t0: float,
+                      limit: float, stroke_id: int, low: float) -> list[_Segment]:
+    """A stroke's segments from ``t0``: slides of ``active`` s in all, interrupted by the lift
+    episodes, cut at ``limit``; empty segments dropped."""
     segments = []
     t, tau_prev = t0, 0.0
-    c = st.clearance + 0.0005
-    for tau_l, lateral, lifts in episodes + [(active, None, [])]:
-        tb = t + (tau_l - tau_prev)
-        segments.append(_Segment(t, min(tb, limit), 'stroke', slide(t, tau_prev), True, stroke_id))
+    for episode in [*episodes, _LiftEpisode(active, None, [])]:
+        tb = t + (episode.tau - tau_prev)
+        segments.append(_Segment(t, min(tb, limit), 'stroke', track.sliding_from(t, tau_prev), True,
+                                 stroke_id))
         if tb >= limit:
-            t = limit
             break
-        t, tau_prev = tb, tau_l
-        if not lifts:
-            continue
-        p_l = at_arc(arc(np.array([tau_l])))[0]
-        n_l = normals[min(int(np.searchsorted(cum, float(arc(tau_l)))), n_valid - 1)]
-        side = lateral - np.dot(lateral, n_l) * n_l
-        for dur, height, touch in lifts:
-            if t + dur + touch >= limit:
-                break
+        t, tau_prev = tb, episode.tau
+        if episode.lifts:
+            lifts, t = _lifts_in_place(track, episode, t, limit, stroke_id, low)
+            segments.extend(lifts)
+    return [seg for seg in segments if seg.t1 > seg.t0]
 
-            def lift_fn(times, ta=t, dur=dur, height=max(height, c), p_l=p_l, n_l=n_l, side=side):
-                bump = np.sin(np.pi * np.clip((times - ta) / dur, 0.0, 1.0))
-                return p_l + (c + (height - c) * bump)[:, None] * n_l + bump[:, None] * side
-            segments.append(_Segment(t, t + dur, 'lift', lift_fn, False))
-            # back down at the same place for a moment (the arc time stays frozen)
-            segments.append(_Segment(t + dur, t + dur + touch, 'stroke', hold(p_l), True,
-                                     stroke_id))
-            t += dur + touch
-    segments = [seg for seg in segments if seg.t1 > seg.t0]
+
+def _stroke_segments(pool: _StrokePool, index: int, t0: float, duration: float, speed: float,
+                     settings: ExplorationSettings, rng, stroke_id: int,
+                     limit: float) -> tuple[list, float, np.ndarray, np.ndarray]:
+    """Segments of one stroke (with its involuntary lifts) starting at ``t0``, ending by
+    ``limit``. Returns (segments, end time, last contact point, its normal)."""
+    track = _StrokeTrack(pool, index, speed, settings, rng)
+    active = track.sliding_time(duration)
+    episodes = _draw_lift_episodes(active, settings, rng)
+    segments = _slide_with_lifts(track, episodes, active, t0, limit, stroke_id,
+                                 settings.clearance + 0.0005)
     if not segments:
-        return [], t0, path[0], normals[0]
+        return [], t0, track.path[0], track.normals[0]
     end_point = segments[-1].fn(np.array([segments[-1].t1]))[0]
-    i_end = int(np.argmin(np.linalg.norm(path - end_point, axis=1)))
-    return segments, segments[-1].t1, end_point, normals[i_end]
+    i_end = int(np.argmin(np.linalg.norm(track.path - end_point, axis=1)))
+    return segments, segments[-1].t1, end_point, track.normals[i_end]
+
+
+# --- planning the three fingers ----------------------------------------------------------
+
+@dataclass
+class _Finger:
+    """One fingertip while its timeline is planned (object frame)."""
+    name: str                   # its entry in FINGERS
+    side: np.ndarray            # unit vector towards the side of the object it prefers
+    t: float                    # time up to which its timeline is planned, s
+    pos: np.ndarray             # where it is at ``t``, off the surface (after a stroke: where
+                                # it lifts to if it does not slide on)
+    normal: np.ndarray          # outward direction at ``pos`` (the surface normal below it)
+    contact: np.ndarray | None = None   # the surface point where its last stroke ended, if it
+                                        # is still there at ``t`` (it may slide on from there)
+    pending: tuple[int, int] | None = None  # (grip, pool index) of the stroke an away phase
+                                            # brought it to, to be done next
+    strokes: int = 0            # strokes begun: the id of the next one
+    segments: list = field(default_factory=list)  # its timeline so far (_Segment), in order
+
+
+class _Explorer:
+    """Plans the fingers' timelines move by move: re-grasps (away phases), slides and
+    transits to the next stroke, dwells and strokes.
+
+    Holds what the moves share: the object, settings, random stream, surroundings, the
+    windows of the re-grasps, the stroke pool of each grip with how often its stroke starts
+    have been explored, the fingers and the log of events."""
+
+    def __init__(self, obj: ObjectModel, duration: float, rng: np.random.Generator,
+                 settings: ExplorationSettings, grips: list, windows: list, table: bool,
+                 object_pose: Callable | None):
+        self.obj = obj
+        self.duration = duration
+        self.rng = rng
+        self.st = settings
+        self.windows = windows
+        self.table = table
+        self.object_pose = object_pose
+        self.surroundings = _Surroundings(obj, table)
+        # how far off the surface a fingertip leaves it and comes back: just past `clearance`
+        self.hover = settings.clearance + 0.0005
+        # the grips in force in turn: the first until the first window, the next after it ...
+        self.grip_of = [grips[i % len(grips)] for i in range(len(windows) + 1)]
+        self.pools: dict[str, _StrokePool] = {}      # one pool per held region
+        for grip in self.grip_of:
+            if grip.name not in self.pools:
+                self.pools[grip.name] = _build_pool(obj, grip, table, settings, rng)
+        self.pool_list = [self.pools[grip.name] for grip in self.grip_of]
+        # per pool: how many strokes so far passed near each stroke start
+        self.explored = {key: np.zeros(len(pool.starts)) for key, pool in self.pools.items()}
+        self.fingers = [self._arriving(name) for name in FINGERS]
+        self.events: list = []                       # (finger, kind, t_start, t_end)
+
+    def _arriving(self, name: str) -> _Finger:
+        """A finger where the hand arrives from: on its side, a few cm from the object,
+        hovering there until a random moment in the first 0.3 s."""
+        side = _normalize(np.asarray(_FINGER_SIDES[name]))
+        centre = self.obj.centre
+        start = centre + side * (0.5 * np.linalg.norm(self.obj.size[:2]) + 0.05) + np.array([0, 0, 0.03])
+        start = self.surroundings.push_out(start[None], self.st.clearance + 0.01)[0]
+        finger = _Finger(name=name, side=side, t=float(self.rng.uniform(0.0, 0.3)), pos=start,
+                         normal=_normalize(start - centre))
+        finger.segments.append(_Segment(-1.0, finger.t, 'transit', _stay_at(start), False))
+        return finger
+
+    # --- shared look-ups ---
+
+    def grip_index(self, t: float) -> int:
+        """Index of the grip in force at ``t``: the number of re-grasps over by then."""
+        return sum(1 for _, b in self.windows if t >= b)
+
+    def grip_indices(self, times: np.ndarray) -> np.ndarray:
+        """``grip_index`` at each of ``times``."""
+        ends = np.array([b for _, b in self.windows], dtype=float)
+        return np.sum(times[:, None] >= ends[None, :], axis=1).astype(int)
+
+    def next_window(self, t: float) -> tuple[float, float] | None:
+        """The first re-grasp window not over at ``t``, if any."""
+        for a, b in self.windows:
+            if b > t:
+                return a, b
+        return None
+
+    def choose_stroke(self, finger: _Finger, t: float, here: np.ndarray) -> tuple[int, int]:
+        """Draw ``finger``'s next stroke from the pool of the grip in force at ``t``: near
+        ``here``, on the finger's side, preferably not explored yet, and not used since the
+        pool was last reset (when none is left). Returns (grip, pool index), marked used."""
+        st = self.st
+        gi = self.grip_index(t)
+        pool = self.pool_list[gi]
+        d = np.linalg.norm(pool.starts - here, axis=1)
+        w = np.exp(-d / st.neighbourhood)
+        w *= np.exp(st.side_preference * (pool.start_normals @ finger.side))
+        w *= np.where(self.explored[self.grip_of[gi].name] > 0, st.explored_weight, 1.0)
+        w = np.where(pool.used, 0.0, w)
+        if w.sum() <= 0:
+            pool.used[:] = False
+            w = np.exp(-d / st.neighbourhood)
+        index = int(self.rng.choice(len(w), p=w / w.sum()))
+        pool.used[index] = True
+        return gi, index
+
+    def mark_explored(self, points: np.ndarray) -> None:
+        """Count a stroke along ``points`` (subsampled to about 40) as exploring every
+        pool's stroke starts within 12 mm of it."""
+        sub = points[:: max(1, len(points) // 40)]
+        for key, pool in self.pools.items():
+            d2 = np.min(np.sum((pool.starts[:, None, :] - sub[None, :, :]) ** 2, axis=2), axis=1)
+            self.explored[key] += d2 < 0.012 ** 2
+
+    # --- the moves ---
+
+    def plan(self) -> None:
+        """Plan moves for the finger furthest behind until every finger reaches the end."""
+        while True:
+            behind = [finger for finger in self.fingers if finger.t < self.duration]
+            if not behind:
+                return
+            self._next_move(min(behind, key=lambda finger: finger.t))
+
+    def _next_move(self, finger: _Finger) -> None:
+        """The finger's next move: an away phase when a re-grasp is due, otherwise to a
+        stroke (by sliding or through the air, unless an away phase brought it there), a
+        dwell now and then, and the stroke, all ending by ``limit`` (the re-grasp)."""
+        t = finger.t
+        window = self.next_window(t)
+        limit = self.duration + 1.0
+        if window is not None:
+            limit = min(limit, window[0] - self.rng.uniform(0.0, 0.3))
+            if t >= limit - 0.4:
+                self._away(finger, window)
+                return
+        planned = self.rng.uniform(*self.st.stroke_duration_range)
+        speed = self.rng.uniform(*self.st.speed_range)
+        if finger.pending is not None:
+            (gi, index), finger.pending = finger.pending, None
+        else:
+            here = finger.contact if finger.contact is not None else finger.pos
+            gi, index = self.choose_stroke(finger, t, here)
+            arrival = self._to_stroke(finger, t, gi, index, speed, limit, window)
+            if arrival is None:     # waiting for the re-grasp instead
+                return
+            t = arrival
+        t = self._dwell(finger, t, self.pool_list[gi].starts[index], limit)
+        self._stroke(finger, t, gi, index, planned, speed, limit)
+
+    def _away(self, finger: _Finger, window: tuple[float, float]) -> None:
+        """Re-grasp: withdraw, wait while the object turns, come back to (lifted above) a
+        stroke chosen from the next grip's pool, done next."""
+        t = finger.t
+        t_back = window[1] + self.rng.uniform(0.0, 0.4)
+        gi, index = self.choose_stroke(finger, t_back, finger.pos)
+        pool = self.pool_list[gi]
+        b = pool.starts[index] + pool.start_normals[index] * self.hover
+        finger.segments.append(_away_segment(self.obj, self.surroundings, finger.pos, finger.normal, t, b,
+                                             pool.start_normals[index], t_back, self.st, self.rng,
+                                             self.object_pose))
+        self.events.append((finger.name, 'away', t, t_back))
+        finger.t, finger.pos, finger.normal = t_back, b, pool.start_normals[index]
+        finger.contact = None
+        finger.pending = (gi, index)
+
+    def _to_stroke(self, finger: _Finger, t: float, gi: int, index: int, speed: float, limit: float,
+                   window: tuple[float, float] | None) -> float | None:
+        """Move from ``t`` to the start of stroke ``index``: slide there over the surface if
+        the finger is on it close by and the way is clear, else through the air. Returns the
+        arrival time, or None when the finger waits for the re-grasp instead."""
+        pool = self.pool_list[gi]
+        path = None
+        near = finger.contact is not None and (
+            np.linalg.norm(pool.starts[index] - finger.contact) < self.st.slide_reach)
+        if near:
+            path = _slide_path(self.obj, self.surroundings, self.grip_of[gi], self.table, self.st,
+                               finger.contact, pool.starts[index])
+        if path is not None:
+            return self._slide(finger, t, path, speed, limit)
+        return self._transit(finger, t, gi, index, limit, window)
+
+    def _slide(self, finger: _Finger, t: float, path: np.ndarray, speed: float, limit: float) -> float:
+        """Contour following goes on over the surface along ``path`` at the stroke's speed
+        (a contact like the stroke before, under its id), cut at ``limit``. Returns the
+        arrival time."""
+        length = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
+        dt = length / speed
+        if t + dt >= limit:
+            dt = max(limit - t, 0.0)
+        finger.segments.append(_Segment(t, t + dt, 'stroke', _slide_along(path, t, t + length / speed),
+                                        True, finger.strokes))
+        self.events.append((finger.name, 'slide', t, t + dt))
+        return t + dt
+
+    def _transit(self, finger: _Finger, t: float, gi: int, index: int, limit: float,
+                 window: tuple[float, float] | None) -> float | None:
+        """Lift off and move through the air to the lifted start of stroke ``index``. If it
+        would not be there well before a re-grasp, the finger waits for the re-grasp where it
+        is instead and the stroke goes back to the pool. Returns the arrival time, or None
+        when waiting."""
+        pool = self.pool_list[gi]
+        b = pool.starts[index] + pool.start_normals[index] * self.hover
+        waypoints = _air_waypoints(self.obj, self.surroundings, finger.pos, finger.normal, b,
+                                   pool.start_normals[index], self.st, self.rng)
+        length = np.sum(np.linalg.norm(np.diff(waypoints, axis=0), axis=1))
+        dt = float(np.clip(length / self.st.transit_speed, *self.st.transit_duration_range))
+        if t + dt > limit - 0.2 and window is not None:
+            self._hover(finger, t, limit, finger.pos, finger.normal)
+            pool.used[index] = False
+            return None
+        end_speed = self.st.transit_end_speed
+        finger.segments.append(_Segment(t, t + dt, 'transit',
+                                        lambda times: _timed_polyline(waypoints, times, t, t + dt, end_speed),
+                                        False))
+        self.events.append((finger.name, 'transit', t, t + dt))
+        return t + dt
+
+    def _dwell(self, finger: _Finger, t: float, start: np.ndarray, limit: float) -> float:
+        """Now and then the fingertip rests on the stroke's ``start`` for a moment (if that
+        ends before ``limit``). Returns the time the stroke starts."""
+        if self.rng.random() < self.st.dwell_probability:
+            dd = self.rng.uniform(*self.st.dwell_duration_range)
+            if t + dd < limit:
+                finger.segments.append(_Segment(t, t + dd, 'dwell', _stay_at(start), True))
+                self.events.append((finger.name, 'dwell', t, t + dd))
+                t += dd
+        return t
+
+    def _stroke(self, finger: _Finger, t: float, gi: int, index: int, planned: float, speed: float,
+                limit: float) -> None:
+        """Stroke ``index`` from ``t`` (planned to last ``planned`` s at ``speed``), ending by
+        ``limit``; the finger is left at the stroke's end, still in contact. With no time
+        left for it, the finger stays lifted above the stroke's start until ``limit``."""
+        pool = self.pool_list[gi]
+        stroke_id = finger.strokes
+        finger.strokes += 1
+        segments, t_end, end_point, end_normal = _stroke_segments(
+            pool, index, t, planned, speed, self.st, self.rng, stroke_id, limit)
+        if not segments:
+            lifted = pool.starts[index] + pool.start_normals[index] * self.hover
+            self._hover(finger, t, max(limit, t), lifted, pool.start_normals[index])
+            return
+        finger.segments.extend(segments)
+        self.events.append((finger.name, 'stroke', t, t_end))
+        self.mark_explored(pool.paths[index, :pool.lengths[index] + 1])
+        finger.t, finger.pos, finger.normal = t_end, end_point + end_normal * self.hover, end_normal
+        finger.contact = end_point
+
+    def _hover(self, finger: _Finger, t: float, until: float, point: np.ndarray,
+               normal: np.ndarray) -> None:
+        """The finger waits off the surface at ``point`` from ``t`` until ``until`` (a
+        re-grasp)."""
+        finger.segments.append(_Segment(t, until, 'transit', _stay_at(point), False))
+        finger.t, finger.pos, finger.normal = until, point, normal
+        finger.contact = None
+
+
+def _sample_timelines(fingers: list[_Finger], times: np.ndarray, rate: float, obj: ObjectModel,
+                      surroundings: _Surroundings, clearance: float):
+    """Every finger's segments evaluated at the tracker frames ``times`` (= k / ``rate``),
+    each segment at the frames in [t0, t1). Contacts are put exactly on the surface and
+    everything else at least ``clearance`` off it. Returns positions (3, T, 3), contact,
+    stroke and kind (3, T)."""
+    n_frames = len(times)
+    positions = np.zeros((3, n_frames, 3))
+    contact = np.zeros((3, n_frames), dtype=bool)
+    stroke = np.full((3, n_frames), -1, dtype=int)
+    kind = np.zeros((3, n_frames), dtype=np.int8)
+    for f, finger in enumerate(fingers):
+        for seg in finger.segments:
+            k0 = max(0, math.ceil(seg.t0 * rate - 1e-9))
+            k1 = min(n_frames, math.ceil(seg.t1 * rate - 1e-9))
+            if k1 <= k0:
+                continue
+            positions[f, k0:k1] = seg.fn(times[k0:k1])
+            contact[f, k0:k1] = seg.contact
+            stroke[f, k0:k1] = seg.stroke_id if seg.kind == 'stroke' else -1
+            kind[f, k0:k1] = SAMPLE_KINDS.index(seg.kind)
+    on = contact.reshape(-1)
+    flat = positions.reshape(-1, 3)
+    flat[on] = obj.project_to_surface(flat[on])
+    off = ~on
+    flat[off] = surroundings.push_out(flat[off], clearance)
+    return flat.reshape(3, n_frames, 3), contact, stroke, kind
 
 
 def explore(obj: ObjectModel, duration: float, rate: float, rng: np.random.Generator,
@@ -500,206 +859,18 @@ def explore(obj: ObjectModel, duration: float, rate: float, rng: np.random.Gener
     ``object_pose(times) -> (positions (N, 3), quaternions (N, 4))``: the object's pose in the
     tracker frame, needed when there are away windows (the hand withdraws in the room).
     """
-    st = settings
     grips = list(grips) if grips else [obj.static_grip]
     windows = sorted((float(a), float(b)) for a, b in away_windows)
     if windows and object_pose is None:
         raise ValueError('away windows need object_pose')
-    n_frames = int(round(duration * rate))
-    times = np.arange(n_frames) / rate
-    surroundings = _Surroundings(obj, table)
-    grip_count = len(windows) + 1
-    grip_of = [grips[i % len(grips)] for i in range(grip_count)]
-    pools = {}
-    for gi in range(grip_count):
-        key = grip_of[gi].name
-        if key not in pools:
-            pools[key] = _build_pool(obj, grip_of[gi], table, st, rng)
-    pool_list = [pools[grip_of[gi].name] for gi in range(grip_count)]
-    explored = {key: np.zeros(len(pool.starts)) for key, pool in pools.items()}
-
-    def grip_index(t):
-        return sum(1 for a, b in windows if t >= b)
-
-    state = []
-    centre = obj.centre
-    for f, name in enumerate(FINGERS):
-        side = _normalize(np.asarray(_FINGER_SIDES[name]))
-        # The hand arrives from the finger's side, a few cm away.
-        start = centre + side * (0.5 * np.linalg.norm(obj.size[:2]) + 0.05) + np.array([0, 0, 0.03])
-        start = surroundings.push_out(start[None], st.clearance + 0.01)[0]
-        state.append({'t': float(rng.uniform(0.0, 0.3)), 'pos': start,
-                      'normal': _normalize(start - centre), 'segments': [],
-                      'side': side, 'strokes': 0, 'pending': None, 'contact': None})
-    # Before the first move each finger hovers where it is.
-    for f in range(3):
-        s = state[f]
-        s['segments'].append(_Segment(-1.0, s['t'], 'transit',
-                                      (lambda times, p=s['pos']: np.repeat(p[None], len(times), 0)),
-                                      False))
-
-    events = []
-
-    def choose_stroke(f, t, pos):
-        gi = grip_index(t)
-        pool = pool_list[gi]
-        key = grip_of[gi].name
-        d = np.linalg.norm(pool.starts - pos, axis=1)
-        w = np.exp(-d / st.neighbourhood)
-        w *= np.exp(st.side_preference * (pool.start_normals @ state[f]['side']))
-        w *= np.where(explored[key] > 0, st.explored_weight, 1.0)
-        w = np.where(pool.used, 0.0, w)
-        if w.sum() <= 0:
-            pool.used[:] = False
-            w = np.exp(-d / st.neighbourhood)
-        index = int(rng.choice(len(w), p=w / w.sum()))
-        pool.used[index] = True
-        return gi, index
-
-    def mark_explored(points):
-        sub = points[:: max(1, len(points) // 40)]
-        for key, pool in pools.items():
-            d2 = np.min(np.sum((pool.starts[:, None, :] - sub[None, :, :]) ** 2, axis=2), axis=1)
-            explored[key] += d2 < 0.012 ** 2
-
-    def next_window(t):
-        for a, b in windows:
-            if b > t:
-                return a, b
-        return None
-
-    while True:
-        active = [f for f in range(3) if state[f]['t'] < duration]
-        if not active:
-            break
-        f = min(active, key=lambda i: state[i]['t'])
-        s = state[f]
-        t = s['t']
-        window = next_window(t)
-        limit = duration + 1.0
-        if window is not None:
-            limit = min(limit, window[0] - rng.uniform(0.0, 0.3))
-        if window is not None and t >= limit - 0.4:
-            # Re-grasp: withdraw, wait while the object turns, come back to a new stroke.
-            wa, wb = window
-            t_back = wb + rng.uniform(0.0, 0.4)
-            gi, index = choose_stroke(f, t_back, s['pos'])
-            pool = pool_list[gi]
-            b = pool.starts[index] + pool.start_normals[index] * (st.clearance + 0.0005)
-            seg = _away_segment(obj, surroundings, s['pos'], s['normal'], t, b,
-                                pool.start_normals[index], t_back, st, rng, object_pose)
-            s['segments'].append(seg)
-            events.append((FINGERS[f], 'away', t, t_back))
-            s['t'] = t_back
-            s['pos'] = b
-            s['normal'] = pool.start_normals[index]
-            s['contact'] = None
-            s['pending'] = (gi, index)
-            continue
-        planned = rng.uniform(*st.stroke_duration_range)
-        speed = rng.uniform(*st.speed_range)
-        sid = s['strokes']
-        if s['pending'] is not None:
-            gi, index = s['pending']
-            s['pending'] = None
-            pool = pool_list[gi]
-        else:
-            here = s['contact'] if s['contact'] is not None else s['pos']
-            gi, index = choose_stroke(f, t, here)
-            pool = pool_list[gi]
-            slide = None
-            if (s['contact'] is not None
-                    and np.linalg.norm(pool.starts[index] - s['contact']) < st.slide_reach):
-                slide = _slide_path(obj, surroundings, grip_of[gi], table, st, s['contact'],
-                                    pool.starts[index])
-            if slide is not None:
-                # Contour following goes on over the surface to the next place.
-                length = float(np.sum(np.linalg.norm(np.diff(slide, axis=0), axis=1)))
-                dt = length / speed
-                if t + dt >= limit:
-                    dt = max(limit - t, 0.0)
-                s['segments'].append(_Segment(t, t + dt, 'stroke',
-                                              (lambda times, w=slide, a=t, b_=t + length / speed:
-                                               _polyline_at(w, (times - a) / max(b_ - a, 1e-9))),
-                                              True, sid))
-                events.append((FINGERS[f], 'slide', t, t + dt))
-                t += dt
-            else:
-                # Lift off and move through the air to the lifted start of the chosen stroke.
-                b = pool.starts[index] + pool.start_normals[index] * (st.clearance + 0.0005)
-                waypoints = _air_waypoints(obj, surroundings, s['pos'], s['normal'], b,
-                                           pool.start_normals[index], st, rng)
-                length = np.sum(np.linalg.norm(np.diff(waypoints, axis=0), axis=1))
-                dt = float(np.clip(length / st.transit_speed, *st.transit_duration_range))
-                if t + dt > limit - 0.2 and window is not None:
-                    s['t'] = limit  # wait for the re-grasp where it is
-                    s['segments'].append(_Segment(t, limit, 'transit',
-                                                  (lambda times, p=s['pos']: np.repeat(p[None], len(times), 0)),
-                                                  False))
-                    s['contact'] = None
-                    pool.used[index] = False
-                    continue
-                s['segments'].append(_Segment(t, t + dt, 'transit',
-                                              (lambda times, w=waypoints, a=t, b_=t + dt:
-                                               _timed_polyline(w, times, a, b_, st.transit_end_speed)),
-                                              False))
-                events.append((FINGERS[f], 'transit', t, t + dt))
-                t += dt
-        start = pool.starts[index]
-        if rng.random() < st.dwell_probability:
-            dd = rng.uniform(*st.dwell_duration_range)
-            if t + dd < limit:
-                s['segments'].append(_Segment(t, t + dd, 'dwell',
-                                              (lambda times, p=start: np.repeat(p[None], len(times), 0)),
-                                              True))
-                events.append((FINGERS[f], 'dwell', t, t + dd))
-                t += dd
-        s['strokes'] += 1
-        segs, t_end, end_point, end_normal = _stroke_segments(
-            pool, index, t, planned, speed, st, rng, sid, limit)
-        if not segs:
-            # No time for a stroke before the re-grasp: stay lifted until it.
-            s['segments'].append(_Segment(t, max(limit, t), 'transit',
-                                          (lambda times, p=start + pool.start_normals[index] * (st.clearance + 0.0005):
-                                           np.repeat(p[None], len(times), 0)), False))
-            s['t'] = max(limit, t)
-            s['pos'] = start + pool.start_normals[index] * (st.clearance + 0.0005)
-            s['normal'] = pool.start_normals[index]
-            s['contact'] = None
-            continue
-        s['segments'].extend(segs)
-        events.append((FINGERS[f], 'stroke', t, t_end))
-        mark_explored(pool.paths[index, :pool.lengths[index] + 1])
-        s['t'] = t_end
-        s['pos'] = end_point + end_normal * (st.clearance + 0.0005)
-        s['normal'] = end_normal
-        s['contact'] = end_point
-
-    # --- sample every segment at the tracker frames --------------------------------------
-    positions = np.zeros((3, n_frames, 3))
-    contact = np.zeros((3, n_frames), dtype=bool)
-    stroke = np.full((3, n_frames), -1, dtype=int)
-    kind = np.zeros((3, n_frames), dtype=np.int8)
-    for f in range(3):
-        for seg in state[f]['segments']:
-            k0 = max(0, int(math.ceil(seg.t0 * rate - 1e-9)))
-            k1 = min(n_frames, int(math.ceil(seg.t1 * rate - 1e-9)))
-            if k1 <= k0:
-                continue
-            positions[f, k0:k1] = seg.fn(times[k0:k1])
-            contact[f, k0:k1] = seg.contact
-            stroke[f, k0:k1] = seg.stroke_id if seg.kind == 'stroke' else -1
-            kind[f, k0:k1] = SAMPLE_KINDS.index(seg.kind)
-    # Contacts exactly on the surface; everything else at least `clearance` off it.
-    on = contact.reshape(-1)
-    flat = positions.reshape(-1, 3)
-    flat[on] = obj.project_to_surface(flat[on])
-    off = ~on
-    flat[off] = surroundings.push_out(flat[off], st.clearance)
-    positions = flat.reshape(3, n_frames, 3)
-    grip = np.array([grip_index(t) for t in times], dtype=int) if windows else np.zeros(n_frames, int)
+    times = np.arange(round(duration * rate)) / rate
+    explorer = _Explorer(obj, duration, rng, settings, grips, windows, table, object_pose)
+    explorer.plan()
+    positions, contact, stroke, kind = _sample_timelines(explorer.fingers, times, rate, obj,
+                                                         explorer.surroundings, settings.clearance)
     return Exploration(times=times, positions=positions, contact=contact, stroke=stroke,
-                       grip=grip, held_regions=grip_of, kind=kind, events=events)
+                       grip=explorer.grip_indices(times), held_regions=explorer.grip_of, kind=kind,
+                       events=explorer.events)
 
 
 def _away_segment(obj, surroundings, a_obj, na_obj, ta, b_obj, nb_obj, tb, settings, rng,
@@ -723,17 +894,21 @@ def _away_segment(obj, surroundings, a_obj, na_obj, ta, b_obj, nb_obj, tb, setti
     clearance = st.clearance
     end_speed = st.transit_end_speed
 
+    def brisk(u):
+        """Progress along a brisk leg: minimum jerk blended with constant speed (the finger
+        leaves and reaches the surface already moving)."""
+        return end_speed * u + (1 - end_speed) * _min_jerk(u)
+
     def fn(times):
         t = np.asarray(times, dtype=float)
         u_out = np.clip((t - ta) / leg, 0.0, 1.0)
         u_mid = np.clip((t - ta - leg) / max(total - 2 * leg, 1e-9), 0.0, 1.0)
         u_back = np.clip((t - (tb - leg)) / leg, 0.0, 1.0)
         p_trk = np.where((t < ta + leg)[:, None],
-                         a_trk + (end_speed * u_out + (1 - end_speed) * _min_jerk(u_out))[:, None] * (ra - a_trk),
+                         a_trk + brisk(u_out)[:, None] * (ra - a_trk),
                          np.where((t < tb - leg)[:, None],
                                   ra + _min_jerk(u_mid)[:, None] * (rb - ra),
-                                  rb + (end_speed * u_back + (1 - end_speed) * _min_jerk(u_back))[:, None]
-                                  * (b_trk - rb)))
+                                  rb + brisk(u_back)[:, None] * (b_trk - rb)))
         pos, quat = object_pose(t)
         p_obj = rotate_vectors(quaternion_conjugate(quat), p_trk - pos)
         return surroundings.push_out(p_obj, clearance)

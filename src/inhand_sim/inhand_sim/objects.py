@@ -38,11 +38,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = [
+    'NOMINAL_SIZES',
+    'OBJECT_NAMES',
     'ArcTube',
     'Ellipsoid',
     'HeldRegion',
-    'NOMINAL_SIZES',
-    'OBJECT_NAMES',
     'ObjectModel',
     'Primitive',
     'RevolvedBox',

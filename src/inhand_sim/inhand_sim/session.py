@@ -34,83 +34,48 @@ the same ``header.stamp``, which is also the message's log time; frames are
 settings give a bit-for-bit identical bag (MCAP file and metadata.yaml; rosbags writes no
 wall-clock time).
 
-``<output>.truth.npz`` beside the bag folder (e.g. ``bags/cat_static/`` and
-``bags/cat_static.truth.npz``), written with fixed zip timestamps (also reproducible),
-holds exactly these arrays; positions in metres, times in seconds since the Unix epoch
-(the bag's stamps, ``stamp_ns / 1e9``):
-
-=====================  ==========  ============================================================
-key                    shape       content
-=====================  ==========  ============================================================
-object_name            () str      ``cat``, ``bottle`` or ``mug`` (:func:`inhand_sim.objects.get_object`)
-static                 () bool     static session (no object sensor in the bag)
-rate                   () float    tracker frame rate, Hz
-seed                   () int      the simulation seed
-settings_json          (B,) uint8  UTF-8 JSON of every simulation setting (:class:`SessionSettings`)
-surface_points         (N, 3)      dense ground-truth surface samples, OBJECT frame, uniform by
-                                   area, N >= 100,000 (``surface_samples``); float32
-surface_normals        (N, 3)      their outward unit normals; float32
-contacts               (M, 3)      noise-free true contact points of every on-surface fingertip
-                                   sample, OBJECT frame, in time order (thumb, index, middle
-                                   within a frame); each lies on the surface
-contact_times          (M,)        their stamps
-stray_points           (K, 3)      noise-free fingertip positions off the surface (transits,
-                                   involuntary lifts, re-grasps), OBJECT frame, each at least
-                                   6 mm from the surface; same order
-stray_times            (K,)        their stamps
-object_times           (T,)        the stamp of every tracker frame
-object_positions       (T, 3)      true position of the OBJECT frame in the tracker frame
-object_quaternions     (T, 4)      its true orientation (x, y, z, w): ``p_tracker = R p_object
-                                   + position``; constant in static sessions
-=====================  ==========  ============================================================
-
-M + K = 3 T (every fingertip sample is one or the other). The OBJECT frame is the object
-sensor's frame, so in tracked mode ``build_map``'s map frame ``object`` is the frame of
-``surface_points``; in static mode the map frame is the tracker frame: transform
-``surface_points`` by the (constant) object pose.
+``<output>.truth.npz`` beside the bag folder: the ground truth, in the format that
+:mod:`inhand_common.ground_truth` defines (contacts, strays and surface samples in the
+OBJECT frame, which is the object sensor's frame; the object's true pose in the tracker
+frame). Every fingertip sample is a contact or a stray: M + K = 3 T.
 """
 
 from __future__ import annotations
 
-import io
 import json
 import math
-import zipfile
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from inhand_common.rotations import (euler_zyx_to_quaternion, matrix_to_quaternion,
-                                     quaternion_multiply, quaternion_normalize,
-                                     rotate_vectors, slerp)
+from inhand_common.ground_truth import truth_path, write_truth
+from inhand_common.ros_names import TRACKER_FRAME, station_pose_topic
+from inhand_common.rotations import (
+    euler_zyx_to_quaternion,
+    matrix_to_quaternion,
+    quaternion_multiply,
+    quaternion_normalize,
+    rotate_vectors,
+    slerp,
+)
 from inhand_mapping.pose_cdr import encode_pose_stamped
-
-from inhand_sim.exploration import (FINGERS, Exploration, ExplorationSettings, TrackerNoise,
-                                    explore)
+from inhand_sim.exploration import FINGERS, Exploration, ExplorationSettings, TrackerNoise, explore
 from inhand_sim.objects import ObjectModel, get_object
 
 __all__ = [
     'EPOCH',
-    'TRUTH_KEYS',
     'SessionSettings',
     'SimulatedSession',
-    'load_truth',
     'simulate',
-    'truth_path',
     'write_bag',
     'write_session',
-    'write_truth',
 ]
 
 EPOCH = 1_700_000_000.0
-FRAME_ID = 'polhemus_source'
+FRAME_ID = TRACKER_FRAME
 MSGTYPE = 'geometry_msgs/msg/PoseStamped'
-TRUTH_KEYS = ('object_name', 'static', 'rate', 'seed', 'settings_json', 'surface_points',
-              'surface_normals', 'contacts', 'contact_times', 'stray_points', 'stray_times',
-              'object_times', 'object_positions', 'object_quaternions')
-
 
 @dataclass(frozen=True)
 class SessionSettings:
@@ -171,7 +136,7 @@ class SimulatedSession:
     stamps_ns: np.ndarray          # (T,) int64
     poses: np.ndarray              # (S, T, 7): x, y, z, qx, qy, qz, qw in the tracker frame
     exploration: Exploration
-    truth: dict                    # the sidecar's arrays (TRUTH_KEYS)
+    truth: dict                    # the sidecar's arrays (inhand_common.ground_truth)
     regrasp_windows: list          # (start, end) s relative to the first frame
 
     @property
@@ -369,12 +334,6 @@ def simulate(settings: SessionSettings, progress: Callable[[str], None] | None =
 
 # --- files -------------------------------------------------------------------------------
 
-def truth_path(bag_path) -> Path:
-    """The ground-truth sidecar of a bag folder: ``<bag folder>.truth.npz`` beside it."""
-    bag_path = Path(bag_path)
-    return bag_path.with_name(bag_path.name + '.truth.npz')
-
-
 def write_bag(session: SimulatedSession, path, progress: Callable[[float], None] | None = None
               ) -> Path:
     """Write the session's poses as a rosbag2 MCAP bag at ``path`` (must not exist)."""
@@ -389,7 +348,7 @@ def write_bag(session: SimulatedSession, path, progress: Callable[[float], None]
     poses = session.poses.tolist()
     stamp_list = stamps.tolist()
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        connections = [writer.add_connection(f'/polhemus/{name}/pose', MSGTYPE, typestore=store)
+        connections = [writer.add_connection('/' + station_pose_topic(name), MSGTYPE, typestore=store)
                        for name in session.stations]
         step = max(1, n_frames // 50)
         for k in range(n_frames):
@@ -400,30 +359,6 @@ def write_bag(session: SimulatedSession, path, progress: Callable[[float], None]
             if progress is not None and (k % step == 0 or k == n_frames - 1):
                 progress((k + 1) / n_frames)
     return path
-
-
-def write_truth(session: SimulatedSession, path) -> Path:
-    """Write the ground-truth sidecar (an .npz with fixed zip timestamps: reproducible)."""
-    path = Path(path)
-    with zipfile.ZipFile(path, 'w', compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
-        for key in TRUTH_KEYS:
-            buffer = io.BytesIO()
-            np.lib.format.write_array(buffer, np.asanyarray(session.truth[key]), allow_pickle=False)
-            info = zipfile.ZipInfo(f'{key}.npy', date_time=(1980, 1, 1, 0, 0, 0))
-            info.external_attr = 0o644 << 16
-            archive.writestr(info, buffer.getvalue())
-    return path
-
-
-def load_truth(path) -> dict:
-    """The sidecar's arrays as a dict (0-d arrays turned into Python scalars, settings
-    decoded into ``settings``)."""
-    with np.load(path, allow_pickle=False) as data:
-        out = {key: data[key] for key in data.files}
-    for key in ('object_name', 'static', 'rate', 'seed'):
-        out[key] = out[key].item()
-    out['settings'] = json.loads(out['settings_json'].tobytes().decode('utf-8'))
-    return out
 
 
 def write_session(session: SimulatedSession, output, force: bool = False,
@@ -442,7 +377,7 @@ def write_session(session: SimulatedSession, output, force: bool = False,
     scratch = Path(tempfile.mkdtemp(prefix=f'.{output.name}.', dir=output.parent))
     try:
         bag_tmp = write_bag(session, scratch / output.name, progress)
-        truth_tmp = write_truth(session, scratch / sidecar.name)
+        truth_tmp = write_truth(scratch / sidecar.name, session.truth)
         for target in existing:
             if target.is_dir() and not target.is_symlink():
                 shutil.rmtree(target)

@@ -77,7 +77,7 @@ def _parse_type(text: str):
     if bracket:
         return ('seq', _parse_type(bracket.group(1)))
     if '/' in text:
-        from inhand_tools.bag_io import message_class
+        from inhand_tools.message_types import message_class
         return ('msg', message_class(text))
     return ('prim', text)
 
@@ -220,11 +220,11 @@ def _is_array_type(field_type: str) -> bool:
 def _field_lines(name: str, value, field_type: str, options: Options, indent: str) -> list[str]:
     if hasattr(value, 'get_fields_and_field_types'):
         nested = _message_lines(value, options, indent + '  ')
-        return [f'{indent}{name}:'] + nested if nested else [f'{indent}{name}: {{}}']
+        return [f'{indent}{name}:', *nested] if nested else [f'{indent}{name}: {{}}']
     if _is_array(value) and (_is_array_type(field_type) or not isinstance(value, bytes)):
         items = _array_items(value) if not isinstance(value, np.ndarray) else value
         if len(items) and hasattr(items[0], 'get_fields_and_field_types'):
-            return [f'{indent}{name}:'] + _message_list(items, field_type, options, indent)
+            return [f'{indent}{name}:', *_message_list(items, field_type, options, indent)]
         return [f'{indent}{name}: {_flow_array(value, field_type, options)}']
     return [f'{indent}{name}: {_scalar(value, field_type)}']
 
@@ -263,11 +263,14 @@ def _cloud_lines(msg, options: Options, indent: str) -> list[str]:
     try:
         from inhand_common.point_cloud import from_point_cloud2
         points = from_point_cloud2(msg)
-    except Exception as error:  # unsupported layouts: say why instead of failing
-        return lines + [f'{indent}points: <not decoded: {error}>']
+    except ValueError as error:
+        # A layout it cannot decode, refused by from_point_cloud2 or numpy (a field name
+        # used twice, a field past point_step, data shorter than the points): say why
+        # instead of failing.
+        return [*lines, f'{indent}points: <not decoded: {error}>']
     count = total if options.full_length else min(total, options.points)
     if total == 0:
-        return lines + [f'{indent}points: []']
+        return [*lines, f'{indent}points: []']
     lines.append(f'{indent}points:  # first {count} of {total}' if count < total
                  else f'{indent}points:  # all {total}')
     names = points.dtype.names

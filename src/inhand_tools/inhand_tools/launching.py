@@ -17,10 +17,10 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
-__all__ = ['ProcessGroup', 'executable', 'call_trigger']
+__all__ = ['ProcessGroup', 'TopicWatch', 'call_trigger', 'executable', 'mapping_graph']
 
 
 def executable(name: str) -> str:
@@ -45,7 +45,7 @@ class ProcessGroup:
         self.processes: list[tuple[str, subprocess.Popen]] = []
         self._lock = threading.Lock()
 
-    def __enter__(self) -> 'ProcessGroup':
+    def __enter__(self) -> ProcessGroup:
         self._previous = {sig: signal.signal(sig, self._on_signal)
                           for sig in (signal.SIGINT, signal.SIGTERM)}
         return self
@@ -160,7 +160,7 @@ class TopicWatch:
         self.count = 0
         self.last: float | None = None  # monotonic time of the last message
 
-    def __enter__(self) -> 'TopicWatch':
+    def __enter__(self) -> TopicWatch:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node

@@ -8,16 +8,22 @@ Power-on state follows the protocol notes: ASCII output, inches, output list ``2
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Iterable, Mapping
 
 import numpy as np
 
 from polhemus_liberty.device_pose import pose_to_record
-from polhemus_liberty.protocol import (CTRL_U, CTRL_V, OutputList, encode_binary_record,
-                                       encode_binary_reply, format_ascii_record)
+from polhemus_liberty.protocol import (
+    CTRL_U,
+    CTRL_V,
+    OutputList,
+    encode_binary_record,
+    encode_binary_reply,
+    format_ascii_record,
+)
 
-__all__ = ['LibertyDevice', 'DeviceState']
+__all__ = ['DeviceState', 'LibertyDevice']
 
 POWER_ON_ITEMS = (2, 4, 1)
 INVALID_COMMAND = b'\r\n*** INVALID COMMAND ***\r\n'

@@ -9,12 +9,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from inhand_common.rotations import (euler_zyx_to_quaternion, matrix_to_quaternion,
-                                     quaternion_canonical, quaternion_normalize,
-                                     quaternion_to_euler_zyx, quaternion_to_matrix)
+from inhand_common.rotations import (
+    euler_zyx_to_quaternion,
+    matrix_to_quaternion,
+    quaternion_canonical,
+    quaternion_normalize,
+    quaternion_to_euler_zyx,
+    quaternion_to_matrix,
+)
 from polhemus_liberty.protocol import NO_ERROR, StationRecord
 
-__all__ = ['METRES_PER_UNIT', 'record_to_pose', 'pose_to_record']
+__all__ = ['METRES_PER_UNIT', 'pose_to_record', 'record_to_pose']
 
 METRES_PER_UNIT = {'cm': 0.01, 'inch': 0.0254}
 

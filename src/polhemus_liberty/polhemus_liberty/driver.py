@@ -22,8 +22,8 @@ import logging
 import termios
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import serial
@@ -31,13 +31,26 @@ import serial
 from polhemus_liberty.device_pose import record_to_pose
 from polhemus_liberty.driver_config import DriverConfig
 from polhemus_liberty.frames import Frame, FrameAssembler
-from polhemus_liberty.protocol import (CMD_CONTINUOUS, CMD_FLUSH, CMD_SINGLE, CMD_STATION_MAP,
-                                       CMD_WHOAMI, CTRL_U, CTRL_V, Reply,
-                                       cmd_format, cmd_frame_rate, cmd_hemisphere,
-                                       cmd_output_list, cmd_units, decode_station_map,
-                                       link_bytes_per_second, make_stream_parser)
+from polhemus_liberty.protocol import (
+    CMD_CONTINUOUS,
+    CMD_FLUSH,
+    CMD_SINGLE,
+    CMD_STATION_MAP,
+    CMD_WHOAMI,
+    CTRL_U,
+    CTRL_V,
+    Reply,
+    cmd_format,
+    cmd_frame_rate,
+    cmd_hemisphere,
+    cmd_output_list,
+    cmd_units,
+    decode_station_map,
+    link_bytes_per_second,
+    make_stream_parser,
+)
 
-__all__ = ['LibertyDriver', 'PoseFrame', 'DriverStatus']
+__all__ = ['DriverStatus', 'LibertyDriver', 'PoseFrame']
 
 # What a vanished or broken port raises: pyserial's own errors, OS errors, and termios
 # errors from flushes on a pty whose other end is gone.
@@ -96,7 +109,7 @@ class LibertyDriver:
         self._last_receipt = float('-inf')
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self) -> 'LibertyDriver':
+    def start(self) -> LibertyDriver:
         self._thread = threading.Thread(target=self.run, name='liberty-driver', daemon=True)
         self._thread.start()
         return self

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 from inhand_common.parameters import ParameterError, ParamSpec
-from polhemus_liberty.protocol import (DEFAULT_OUTPUT_ITEMS, ITEMS, MAX_STATIONS, OutputList)
+from inhand_common.ros_names import DEFAULT_OBJECT_STATION, TRACKER_FRAME
+from polhemus_liberty.protocol import DEFAULT_OUTPUT_ITEMS, ITEMS, MAX_STATIONS, OutputList
 
 __all__ = ['DRIVER_PARAMETERS', 'DriverConfig']
 
@@ -21,7 +23,7 @@ DRIVER_PARAMETERS = (
               choices=STANDARD_BAUDS),
     ParamSpec('stations', [1, 2, 3, 4], 'Station numbers to publish, paired with '
               'station_names', minimum=1, maximum=MAX_STATIONS, min_length=1),
-    ParamSpec('station_names', ['thumb', 'index', 'middle', 'object'],
+    ParamSpec('station_names', ['thumb', 'index', 'middle', DEFAULT_OBJECT_STATION],
               'Topic name of each station in stations: publishes polhemus/<name>/pose',
               min_length=1),
     ParamSpec('units', 'cm', 'Position units the device is set to (U1 = cm, U0 = inch); '
@@ -36,7 +38,7 @@ DRIVER_PARAMETERS = (
               'hold a position (2 or 3) and an orientation (7, 4, 5 or 6); add 9 to detect '
               'dropped frames and 11 to report distortion', minimum=0, maximum=max(ITEMS),
               min_length=2),
-    ParamSpec('frame_id', 'polhemus_source', 'frame_id of the published poses (the '
+    ParamSpec('frame_id', TRACKER_FRAME, 'frame_id of the published poses (the '
               'transmitter frame)'),
     ParamSpec('latency_offset', 0.0, 'Seconds subtracted from the host receipt time to '
               'stamp a frame (device and transport latency)', minimum=0.0, maximum=1.0),
@@ -65,7 +67,7 @@ class DriverConfig:
     reconnect_period: float
 
     @classmethod
-    def from_parameters(cls, values: Mapping[str, Any]) -> 'DriverConfig':
+    def from_parameters(cls, values: Mapping[str, Any]) -> DriverConfig:
         """Build from validated parameter values; checks what spans several parameters."""
         problems = []
         stations, names = list(values['stations']), list(values['station_names'])

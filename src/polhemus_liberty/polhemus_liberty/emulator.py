@@ -24,7 +24,7 @@ from polhemus_liberty.device_model import LibertyDevice
 from polhemus_liberty.motion import MotionSource
 from polhemus_liberty.pty_link import PtyLink
 
-__all__ = ['LibertyEmulator', 'EmulatorStats']
+__all__ = ['EmulatorStats', 'LibertyEmulator']
 
 MAX_PENDING_BYTES = 1 << 16  # like a device's USB buffer: past this, frames are lost
 
@@ -76,7 +76,7 @@ class LibertyEmulator:
     def port(self) -> str:
         return self.link.port
 
-    def start(self) -> 'LibertyEmulator':
+    def start(self) -> LibertyEmulator:
         self._thread = threading.Thread(target=self.run, name='liberty-emulator', daemon=True)
         self._thread.start()
         return self
@@ -87,7 +87,7 @@ class LibertyEmulator:
             self._thread.join(timeout=2.0)
         self.link.close()
 
-    def __enter__(self) -> 'LibertyEmulator':
+    def __enter__(self) -> LibertyEmulator:
         return self.start()
 
     def __exit__(self, *exc) -> None:

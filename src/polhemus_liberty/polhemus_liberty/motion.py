@@ -9,17 +9,29 @@ between samples, and loop.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 
-from inhand_common.rotations import (euler_zyx_to_quaternion, quaternion_multiply,
-                                     quaternion_normalize, rotate_vectors)
+from inhand_common.ros_names import station_pose_topic
+from inhand_common.rotations import (
+    euler_zyx_to_quaternion,
+    quaternion_multiply,
+    quaternion_normalize,
+    rotate_vectors,
+)
 
-__all__ = ['MotionSource', 'BuiltinMotion', 'RecordedMotion', 'load_plhm_text',
-           'load_pose_bag', 'open_motion_source']
+__all__ = [
+    'BuiltinMotion',
+    'MotionSource',
+    'RecordedMotion',
+    'load_plhm_text',
+    'load_pose_bag',
+    'open_motion_source',
+]
 
 Pose = tuple[np.ndarray, np.ndarray]
 
@@ -164,7 +176,7 @@ def load_pose_bag(path: str | Path, station_by_name: Mapping[str, int],
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    wanted = {f'polhemus/{name}/pose': station for name, station in station_by_name.items()}
+    wanted = {station_pose_topic(name): station for name, station in station_by_name.items()}
     by_stamp: dict[int, dict[int, Pose]] = {}
     with AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         connections = [c for c in reader.connections if c.topic.lstrip('/') in wanted]

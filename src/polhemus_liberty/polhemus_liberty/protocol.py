@@ -18,17 +18,41 @@ from __future__ import annotations
 
 import re
 import struct
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from typing import NamedTuple
 
 __all__ = [
-    'ITEMS', 'OutputItem', 'OutputList', 'StationRecord', 'Reply', 'ParserStats',
-    'BinaryStreamParser', 'AsciiStreamParser', 'make_stream_parser',
-    'encode_binary_record', 'encode_binary_reply', 'format_ascii_record',
-    'cmd_format', 'cmd_units', 'cmd_output_list', 'cmd_hemisphere', 'cmd_frame_rate',
-    'CMD_CONTINUOUS', 'CMD_SINGLE', 'CMD_FLUSH', 'CMD_STATION_MAP', 'CMD_WHOAMI',
-    'CMD_RESET_COUNTERS', 'CTRL_U', 'CTRL_V', 'NO_ERROR', 'MAX_STATIONS',
-    'DEFAULT_OUTPUT_ITEMS', 'link_bytes_per_second', 'decode_station_map',
+    'CMD_CONTINUOUS',
+    'CMD_FLUSH',
+    'CMD_RESET_COUNTERS',
+    'CMD_SINGLE',
+    'CMD_STATION_MAP',
+    'CMD_WHOAMI',
+    'CTRL_U',
+    'CTRL_V',
+    'DEFAULT_OUTPUT_ITEMS',
+    'ITEMS',
+    'MAX_STATIONS',
+    'NO_ERROR',
+    'AsciiStreamParser',
+    'BinaryStreamParser',
+    'OutputItem',
+    'OutputList',
+    'ParserStats',
+    'Reply',
+    'StationRecord',
+    'cmd_format',
+    'cmd_frame_rate',
+    'cmd_hemisphere',
+    'cmd_output_list',
+    'cmd_units',
+    'decode_station_map',
+    'encode_binary_record',
+    'encode_binary_reply',
+    'format_ascii_record',
+    'link_bytes_per_second',
+    'make_stream_parser',
 ]
 
 SYNC_LIBERTY = b'LY'
@@ -69,7 +93,10 @@ class OutputItem:
         """Characters of one value in ASCII mode (padding items take one, CR LF none)."""
         if self.ascii_format is None:
             return 1 if self.code == 0 else 0
-        return int(re.match(r'%(\d+)', self.ascii_format).group(1))
+        width = re.match(r'%(\d+)', self.ascii_format)
+        if width is None:
+            raise ValueError(f'item {self.code}: ASCII format {self.ascii_format!r} has no width')
+        return int(width.group(1))
 
     @property
     def count(self) -> int:
@@ -153,7 +180,10 @@ class OutputList:
         self.record_size = HEADER_SIZE + self.payload_size
         self.ends_with_crlf = codes[-1] == 1
         self.value_items = tuple(i for i in self.items if i.field)
-        self.value_count = sum(i.count for i in self.value_items)
+        # (StationRecord attribute, number of values) of each value item, worked out once:
+        # record_from_values walks them for every record.
+        self._value_slots = tuple((i.field, i.count) for i in self.items if i.field)
+        self.value_count = sum(count for _, count in self._value_slots)
         # 4 header characters (station, command, error), the fields, CR LF.
         self.ascii_line_size = 4 + sum(i.ascii_width * max(i.count, 1) for i in self.items) + 2
 
@@ -175,24 +205,23 @@ class OutputList:
         return 2 in self.codes or 3 in self.codes
 
     def record_from_values(self, station: int, command: str, error: int,
-                           flat: Sequence) -> StationRecord:
+                           flat: Sequence[float]) -> StationRecord:
         """Distribute a flat value sequence (in item order) over a :class:`StationRecord`."""
         record = StationRecord(station=station, command=command, error=error)
         index = 0
-        for item in self.value_items:
-            n = item.count
+        for name, n in self._value_slots:
             if n == 1:
-                setattr(record, item.field, flat[index])
+                setattr(record, name, flat[index])
             else:
-                setattr(record, item.field, tuple(flat[index:index + n]))
+                setattr(record, name, tuple(flat[index:index + n]))
             index += n
         return record
 
-    def values_of(self, record: StationRecord) -> list:
+    def values_of(self, record: StationRecord) -> list[float]:
         """Flat value list of ``record`` in item order (the inverse of record_from_values)."""
-        flat: list = []
-        for item in self.value_items:
-            value = getattr(record, item.field)
+        flat: list[float] = []
+        for item, (name, _) in zip(self.value_items, self._value_slots, strict=True):
+            value = getattr(record, name)
             if value is None:
                 raise ValueError(f'record for station {record.station} lacks {item.name} '
                                  f'(item {item.code}) required by {self}')
@@ -210,7 +239,7 @@ class OutputList:
 def encode_binary_record(output_list: OutputList, record: StationRecord) -> bytes:
     """The F1 bytes of one station record (what the device sends)."""
     flat = output_list.values_of(record)
-    packed: list = []
+    packed: list[float | bytes] = []
     index = 0
     for item in output_list.items:
         if item.code == 0:
@@ -239,6 +268,8 @@ def format_ascii_record(output_list: OutputList, record: StationRecord) -> bytes
         if item.code == 0:
             parts.append(' ')
         elif item.field:
+            if item.ascii_format is None:
+                raise ValueError(f'item {item.code} ({item.name}) has no ASCII format')
             for value in flat[index:index + item.count]:
                 parts.append(item.ascii_format % value)
             index += item.count
@@ -302,7 +333,7 @@ class ParserStats:
     resyncs: int = 0
     bad_lines: int = 0
     error_records: int = 0
-    reasons: dict = field(default_factory=dict)
+    reasons: dict[str, int] = field(default_factory=dict)
 
     def drop(self, count: int, reason: str) -> None:
         if count <= 0:
@@ -332,6 +363,17 @@ class _StreamParser:
         self._buffer.clear()
 
 
+class _Header(NamedTuple):
+    """The 8-byte binary header (``HEADER``)."""
+
+    sync: bytes
+    station: int
+    command: int
+    error: int
+    reserved: int
+    payload_size: int
+
+
 class BinaryStreamParser(_StreamParser):
     """Incremental F1 parser: feed it whatever the port returned, get whole records back.
 
@@ -349,68 +391,94 @@ class BinaryStreamParser(_StreamParser):
         self.max_buffer = max_buffer
 
     def feed(self, data: bytes) -> list[StationRecord | Reply]:
+        """Records and replies completed by ``data``, in stream order; an incomplete one at the
+        end is held back for the next call (``pending``)."""
         self.stats.bytes_in += len(data)
-        buffer = self._buffer
-        buffer.extend(data)
+        self._buffer.extend(data)
         out: list[StationRecord | Reply] = []
-        layout = self.output_list
-        payload_struct = layout.payload_struct
-        size = layout.payload_size
-        total = layout.record_size
-        crlf = layout.ends_with_crlf
-        stats = self.stats
         pos = 0
-        n = len(buffer)
         while True:
-            start = buffer.find(SYNC_LIBERTY, pos)
-            if start < 0:
-                # Keep a trailing 'L': it may be the first half of the next sync.
-                keep = 1 if n > pos and buffer[n - 1] == 0x4C else 0
-                stats.drop(n - keep - pos, 'no sync')
-                pos = n - keep
-                break
-            if start > pos:
-                stats.drop(start - pos, 'garbage before sync')
-                pos = start
-            if n - pos < HEADER_SIZE:
-                break
-            _, station, command, error, _, payload_size = HEADER.unpack_from(buffer, pos)
-            if command in DATA_COMMANDS:
-                if not 1 <= station <= MAX_STATIONS or payload_size != size:
-                    stats.drop(1, 'bad station' if payload_size == size else 'bad size field')
-                    pos += 1
-                    continue
-                if n - pos < total:
-                    break
-                end = pos + total
-                if crlf and buffer[end - 2:end] != b'\r\n':
-                    stats.drop(1, 'missing CR LF')
-                    pos += 1
-                    continue
-                values = payload_struct.unpack_from(buffer, pos + HEADER_SIZE)
-                record = layout.record_from_values(station, chr(command), error, values)
-                if error != NO_ERROR:
-                    stats.error_records += 1
-                out.append(record)
-                stats.records += 1
-                pos = end
-                continue
-            if self.accept_replies and station <= MAX_STATIONS and \
-                    payload_size <= MAX_REPLY_PAYLOAD and command >= 0x01:
-                if n - pos < HEADER_SIZE + payload_size:
-                    break
-                payload = bytes(buffer[pos + HEADER_SIZE:pos + HEADER_SIZE + payload_size])
-                out.append(Reply(command=command, station=station, payload=payload))
-                stats.replies += 1
-                pos += HEADER_SIZE + payload_size
-                continue
-            stats.drop(1, 'bad command byte')
-            pos += 1
-        del buffer[:pos]
-        if len(buffer) > self.max_buffer:  # cannot happen with a sane size check; be safe
-            stats.drop(len(buffer), 'overflow')
-            buffer.clear()
+            pos = self._skip_to_sync(pos)
+            if len(self._buffer) - pos < HEADER_SIZE:
+                break   # no header yet, or no sync at all (at most a trailing 'L' is left)
+            header = _Header._make(HEADER.unpack_from(self._buffer, pos))
+            if header.command in DATA_COMMANDS:
+                after = self._take_record(pos, header, out)
+            elif self._may_be_reply(header):
+                after = self._take_reply(pos, header, out)
+            else:
+                after = self._resync(pos, 'bad command byte')
+            if after is None:
+                break   # a candidate that is not complete yet
+            pos = after
+        del self._buffer[:pos]
+        if len(self._buffer) > self.max_buffer:  # cannot happen with a sane size check; be safe
+            self.stats.drop(len(self._buffer), 'overflow')
+            self._buffer.clear()
         return out
+
+    # Each step below looks at the buffer from ``pos`` and returns where the next one
+    # starts, or None when the candidate there needs more bytes.
+
+    def _skip_to_sync(self, pos: int) -> int:
+        """Position of the next sync bytes at or after ``pos``, what comes before dropped.
+        Without one, everything is dropped except a trailing 'L': it may be the first half of
+        the next sync."""
+        buffer = self._buffer
+        start = buffer.find(SYNC_LIBERTY, pos)
+        if start < 0:
+            n = len(buffer)
+            keep = 1 if n > pos and buffer[n - 1] == 0x4C else 0
+            self.stats.drop(n - keep - pos, 'no sync')
+            return n - keep
+        if start > pos:
+            self.stats.drop(start - pos, 'garbage before sync')
+        return start
+
+    def _take_record(self, pos: int, header: _Header, out: list[StationRecord | Reply]
+                     ) -> int | None:
+        """A data record (``C``/``P``) at ``pos``, appended to ``out`` if it passes every check
+        of the class docstring; otherwise a resync."""
+        layout = self.output_list
+        size = layout.payload_size
+        if not 1 <= header.station <= MAX_STATIONS or header.payload_size != size:
+            return self._resync(pos, 'bad station' if header.payload_size == size
+                                else 'bad size field')
+        end = pos + layout.record_size
+        if len(self._buffer) < end:
+            return None
+        if layout.ends_with_crlf and self._buffer[end - 2:end] != b'\r\n':
+            return self._resync(pos, 'missing CR LF')
+        values = layout.payload_struct.unpack_from(self._buffer, pos + HEADER_SIZE)
+        out.append(layout.record_from_values(header.station, chr(header.command), header.error,
+                                             values))
+        if header.error != NO_ERROR:
+            self.stats.error_records += 1
+        self.stats.records += 1
+        return end
+
+    def _may_be_reply(self, header: _Header) -> bool:
+        """A header that can start a reply to a system command: only during set-up
+        (``accept_replies``), so that garbage cannot swallow good records while streaming."""
+        return (self.accept_replies and header.station <= MAX_STATIONS
+                and header.payload_size <= MAX_REPLY_PAYLOAD and header.command >= 0x01)
+
+    def _take_reply(self, pos: int, header: _Header, out: list[StationRecord | Reply]
+                    ) -> int | None:
+        """The reply at ``pos``, appended to ``out`` once its payload is complete."""
+        end = pos + HEADER_SIZE + header.payload_size
+        if len(self._buffer) < end:
+            return None
+        out.append(Reply(command=header.command, station=header.station,
+                         payload=bytes(self._buffer[pos + HEADER_SIZE:end])))
+        self.stats.replies += 1
+        return end
+
+    def _resync(self, pos: int, reason: str) -> int:
+        """The candidate at ``pos`` is not a record: drop its first byte and look again from
+        the next one (a sync inside the rejected bytes is still found)."""
+        self.stats.drop(1, reason)
+        return pos + 1
 
 
 _NUMBER = re.compile(rb'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?')
@@ -433,7 +501,7 @@ class AsciiStreamParser(_StreamParser):
         int_fields = {'timestamp_ms', 'frame_count', 'stylus', 'distortion', 'external_sync'}
         self._is_int = [item.field in int_fields
                         for item in output_list.value_items for _ in range(item.count)]
-        self._slices = []
+        self._slices: list[tuple[int, int]] = []
         offset = 4
         for item in output_list.items:
             for _ in range(item.count if item.field else 1):
@@ -491,9 +559,9 @@ class AsciiStreamParser(_StreamParser):
             tokens = _NUMBER.findall(line, 4)
         if len(tokens) != self.output_list.value_count:
             return None
-        values: list = []
+        values: list[float] = []
         try:
-            for token, is_int in zip(tokens, self._is_int):
+            for token, is_int in zip(tokens, self._is_int, strict=True):
                 values.append(int(token) if is_int else float(token))
         except ValueError:
             return None
@@ -503,7 +571,9 @@ class AsciiStreamParser(_StreamParser):
         return self.output_list.record_from_values(station, command, error, values)
 
 
-def make_stream_parser(output_list: OutputList, binary: bool, accept_replies: bool = False):
+def make_stream_parser(output_list: OutputList, binary: bool, accept_replies: bool = False
+                       ) -> BinaryStreamParser | AsciiStreamParser:
     """The parser for the device's current output format."""
-    cls = BinaryStreamParser if binary else AsciiStreamParser
-    return cls(output_list, accept_replies=accept_replies)
+    if binary:
+        return BinaryStreamParser(output_list, accept_replies=accept_replies)
+    return AsciiStreamParser(output_list, accept_replies=accept_replies)

@@ -1,19 +1,16 @@
-"""What the bag tools add to :mod:`inhand_common.bag_source`: message classes by type name.
+"""Message classes by type name: ``message_class('geometry_msgs/msg/PoseStamped')``.
 
-No rclpy import here, so argument and bag checks run before the ROS runtime loads. The bag
-reading itself (``BagSource``, ``Progress``) is shared with ``build_map`` and re-exported.
+The bag tools know a topic's type only as a name (from a bag, the graph or ``--type``);
+this imports the ROS message package and returns its class, or raises
+``UnknownMessageType`` with a message for the user. No rclpy import here, so argument and
+bag checks run before the ROS runtime loads.
 """
 
 from __future__ import annotations
 
 import importlib
 
-from inhand_common.bag_source import (BagError, BagSource, BagTopic,  # noqa: F401 (re-exported)
-                                      Progress, relative_name)
-from inhand_common.cli_types import non_negative_float, positive_float  # re-exported
-
-__all__ = ['BagError', 'BagSource', 'BagTopic', 'Progress', 'UnknownMessageType',
-           'message_class', 'non_negative_float', 'positive_float', 'relative_name']
+__all__ = ['UnknownMessageType', 'message_class']
 
 
 class UnknownMessageType(ValueError):

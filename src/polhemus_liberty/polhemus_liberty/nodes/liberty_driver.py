@@ -14,6 +14,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from inhand_common.node_runner import run_node
+from inhand_common.ros_names import station_pose_topic
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
 from polhemus_liberty.driver import LibertyDriver, PoseFrame
@@ -28,7 +29,7 @@ class LibertyDriverNode(Node):
         super().__init__('liberty_driver')
         self.config = DriverConfig.from_parameters(declare_parameters(self, DRIVER_PARAMETERS))
         self._pose_publishers = {
-            station: self.create_publisher(PoseStamped, f'polhemus/{name}/pose', POSE_QOS)
+            station: self.create_publisher(PoseStamped, station_pose_topic(name), POSE_QOS)
             for station, name in self.config.stations.items()}
         self._diagnostics = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         self._status_name = f'{self.get_name()}: Polhemus Liberty on {self.config.port}'

@@ -1,5 +1,11 @@
 """How good a map is against the true surface (numpy and scipy's KD-tree only; no ROS).
 
+:func:`map_metrics` scores the cells above a threshold and :func:`point_metrics` the
+registered raw points; :func:`evaluate` does both for the cells of a map
+(:class:`~inhand_tools.map_cells.MapCells`) at several thresholds, :func:`frame_check` warns
+when the map and the truth seem to be in different frames, :func:`find_truth` finds the
+truth file of a session and :func:`metrics_table` lays the results out for people.
+
 Inputs: cell centres of a map with their occupancy probabilities, the map's lattice (cell
 edge ``h`` and the corner of any cell), and the ground truth: surface samples (uniform by
 area), true contact points and true stray fingertip positions, all in the map's frame.
@@ -13,7 +19,8 @@ Definitions (metres inside, millimetres in the reported ``*_mm`` values)
   (two points at most ``h`` apart lie in cells at most one index apart on every axis), so
   a perfect map of what was touched scores recall 1, and surface nobody came near is not
   held against the map.
-* **Cells of a point set**: ``floor((p - origin) / h)`` per axis. ``G_e`` = cells holding at
+* **Cells of a point set**: ``floor((p - origin) / h)`` per axis
+  (:func:`~inhand_tools.map_cells.cell_indices`). ``G_e`` = cells holding at
   least one explored sample, ``G`` = cells holding any surface sample.
 * **Voxel IoU** = ``|A & G_e| / |A | G_e|`` (exact cell sets; no tolerance).
 * **Cell precision** = fraction of ``A`` within ``tolerance_cells`` (default 1: the cell itself
@@ -57,61 +64,34 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ['Lattice', 'infer_lattice', 'cell_indices', 'explored_mask', 'SurfaceTruth',
-           'map_metrics', 'point_metrics', 'METRIC_LABELS']
+from inhand_common.ground_truth import GroundTruth, truth_path
+from inhand_tools.map_cells import Lattice, MapCells, cell_indices, is_bag
+
+__all__ = ['MAP_SCORE_KEYS', 'METRIC_LABELS', 'SurfaceTruth', 'evaluate', 'explored_mask',
+           'find_truth', 'format_metric', 'frame_check', 'map_metrics', 'metrics_table',
+           'point_metrics']
 
 # Cell indices are packed into one int64 per cell: 20 bits per axis, offset to be positive.
 _BITS = 20
 _OFFSET = 1 << (_BITS - 1)
 _NEIGHBOURS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)],
                        dtype=np.int64)
+_MM = 1000.0
 
-
-@dataclass(frozen=True)
-class Lattice:
-    """Cubic cells of edge ``resolution``; ``origin`` is the corner of cell (0, 0, 0)."""
-
-    resolution: float
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.resolution) and self.resolution > 0):
-            raise ValueError(f'cell size must be positive, not {self.resolution!r}')
-
-
-def infer_lattice(centres, resolution: float | None = None) -> Lattice:
-    """The lattice of a set of cell centres (a PLY or a recorded cloud carries none).
-
-    The cell edge is the smallest gap between distinct centre coordinates on any axis
-    (``resolution`` overrides it); the origin puts the centres at half-cell positions.
-    """
-    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
-    if len(centres) == 0:
-        raise ValueError('no cells to infer the cell size from')
-    if resolution is None:
-        gaps = []
-        for axis in range(3):
-            values = np.unique(np.round(centres[:, axis], 7))
-            step = np.diff(values)
-            step = step[step > 1e-6]
-            if step.size:
-                gaps.append(step.min())
-        if not gaps:
-            raise ValueError('cannot infer the cell size from a single cell: give it '
-                             '(--resolution)')
-        resolution = float(np.round(min(gaps), 6))
-    origin = centres[0] - 0.5 * resolution
-    return Lattice(float(resolution), tuple(float(v) for v in origin))
-
-
-def cell_indices(points, lattice: Lattice) -> np.ndarray:
-    """Integer cell index (n, 3) of each point."""
-    points = np.asarray(points, dtype=float).reshape(-1, 3)
-    return np.floor((points - np.asarray(lattice.origin)) / lattice.resolution).astype(np.int64)
+# The scores of :func:`map_metrics`, in the order of its result (and of the JSON files).
+MAP_SCORE_KEYS = (
+    'threshold', 'resolution_mm', 'occupied_cells', 'explored_cells', 'surface_cells', 'iou',
+    'cell_precision', 'cell_recall', 'cell_fscore', 'chamfer_mm', 'map_to_surface_mm',
+    'surface_to_map_mm', 'precision_at_5mm', 'recall_at_5mm', 'fscore_at_5mm',
+    'normal_offset_mm', 'com_error_mm', 'com_map', 'com_truth', 'stray_cells',
+    'off_surface_cells', 'strays_far_from_surface', 'strays', 'fscore_distance_mm',
+    'surface_margin_mm', 'tolerance_cells', 'explored_radius_mm', 'explored_samples',
+    'surface_samples', 'contacts', 'sample_spacing_mm')
 
 
 def _keys(indices: np.ndarray) -> np.ndarray:
@@ -189,6 +169,122 @@ def _nearest_distances(targets: np.ndarray, queries: np.ndarray) -> np.ndarray:
     return cKDTree(targets).query(queries, k=1, workers=-1)[0]
 
 
+
+@dataclass(frozen=True)
+class _Occupied:
+    """The occupied cells of a map: centres and probabilities above the threshold, and
+    their distinct cell indices with the packed keys of those."""
+
+    centres: np.ndarray
+    weights: np.ndarray
+    cells: np.ndarray
+    keys: np.ndarray
+
+
+def _occupied(centres, probabilities, lattice: Lattice, threshold: float) -> _Occupied:
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    probabilities = np.asarray(probabilities, dtype=float).reshape(-1)
+    if len(centres) != len(probabilities):
+        raise ValueError(f'{len(centres)} centres but {len(probabilities)} probabilities')
+    keep = probabilities > threshold
+    cells = np.unique(cell_indices(centres[keep], lattice), axis=0)
+    return _Occupied(centres[keep], probabilities[keep], cells, _keys(cells))
+
+
+def _cell_scores(occupied: _Occupied, truth: SurfaceTruth, lattice: Lattice,
+                 tolerance_cells: int) -> dict:
+    """Voxel sets: IoU against the explored cells, cell precision against the whole
+    surface and cell recall of the explored cells, within ``tolerance_cells``."""
+    explored_cells = np.unique(cell_indices(truth.explored_points, lattice), axis=0)
+    explored_keys = _keys(explored_cells)
+    surface_cells = cell_indices(truth.points, lattice)
+    surface_keys = np.unique(_keys(surface_cells))
+    intersection = np.intersect1d(occupied.keys, explored_keys).size
+    union = occupied.keys.size + explored_keys.size - intersection
+    correct = np.isin(occupied.keys, _dilated_keys(np.unique(surface_cells, axis=0),
+                                                   tolerance_cells))
+    recalled = np.isin(explored_keys, _dilated_keys(occupied.cells, tolerance_cells))
+    precision = _ratio(np.count_nonzero(correct), correct.size)
+    recall = _ratio(np.count_nonzero(recalled), recalled.size)
+    return {
+        'occupied_cells': int(len(occupied.cells)),
+        'explored_cells': int(len(explored_cells)),
+        'surface_cells': int(surface_keys.size),
+        'iou': _ratio(intersection, union),
+        'cell_precision': precision,
+        'cell_recall': recall,
+        'cell_fscore': _fscore(precision, recall),
+        'off_surface_cells': int(correct.size - np.count_nonzero(correct)),
+    }
+
+
+def _distance_scores(occupied: np.ndarray, truth: SurfaceTruth,
+                     fscore_distance: float) -> dict:
+    """Chamfer, the directed mean distances, the F-score at ``fscore_distance`` and the
+    mean offset along the surface normal of the occupied centres."""
+    explored = truth.explored_points
+    to_surface, nearest = truth.distance(occupied)
+    to_map = _nearest_distances(occupied, explored)
+    precision = _ratio(np.count_nonzero(to_surface <= fscore_distance), len(occupied))
+    recall = _ratio(np.count_nonzero(to_map <= fscore_distance), len(explored))
+    chamfer = (float(np.mean(to_surface)) + float(np.mean(to_map))) / 2.0 \
+        if len(occupied) and len(explored) else math.nan
+    offset = math.nan
+    if truth.normals is not None and len(occupied):
+        offset = float(np.mean(np.einsum('ij,ij->i', occupied - truth.points[nearest],
+                                         truth.normals[nearest])))
+    return {
+        'chamfer_mm': chamfer * _MM,
+        'map_to_surface_mm': float(np.mean(to_surface)) * _MM if len(occupied) else math.nan,
+        'surface_to_map_mm': float(np.mean(to_map)) * _MM if len(explored) and len(occupied)
+        else math.nan,
+        'precision_at_5mm': precision,
+        'recall_at_5mm': recall,
+        'fscore_at_5mm': _fscore(precision, recall),
+        'normal_offset_mm': offset * _MM,
+    }
+
+
+def _centre_of_mass_scores(occupied: _Occupied, explored: np.ndarray) -> dict:
+    """The map's centre of mass (weighted by probability) against the explored surface's
+    centroid."""
+    com_error, com_map, com_truth = math.nan, None, None
+    if len(explored):
+        com_truth = explored.mean(axis=0)
+    if len(occupied.centres):
+        com_map = occupied.weights @ occupied.centres / occupied.weights.sum()
+    if com_map is not None and com_truth is not None:
+        com_error = float(np.linalg.norm(com_map - com_truth))
+    return {
+        'com_error_mm': com_error * _MM,
+        'com_map': None if com_map is None else [float(v) for v in com_map],
+        'com_truth': None if com_truth is None else [float(v) for v in com_truth],
+    }
+
+
+def _stray_scores(occupied: _Occupied, truth: SurfaceTruth, lattice: Lattice,
+                  stray_surface_distance: float, surface_margin: float) -> dict:
+    """True off-surface fingertip positions, and the occupied cells that hold one but that
+    the surface does not reach (a cell holding surface is right to be occupied)."""
+    far_strays = np.empty((0, 3))
+    if len(truth.strays):
+        far_strays = truth.strays[truth.distance(truth.strays)[0] > stray_surface_distance]
+    stray_cells = 0
+    if len(far_strays) and len(occupied.centres):
+        holding = occupied.cells[np.isin(occupied.keys,
+                                         _keys(cell_indices(far_strays, lattice)))]
+        centres_holding = np.asarray(lattice.origin) + (holding + 0.5) * lattice.resolution
+        # Chebyshev distance to the nearest surface sample: inside the grown cell or not.
+        reach = truth.tree.query(centres_holding, k=1, p=np.inf)[0] if len(holding) \
+            else np.empty(0)
+        stray_cells = int(np.count_nonzero(reach > lattice.resolution / 2 + surface_margin))
+    return {
+        'stray_cells': stray_cells,
+        'strays_far_from_surface': int(len(far_strays)),
+        'strays': int(len(truth.strays)),
+    }
+
+
 def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
                 threshold: float = 0.8, tolerance_cells: int = 1,
                 fscore_distance: float = 0.005,
@@ -198,100 +294,27 @@ def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
 
     ``centres`` (n, 3) and ``probabilities`` (n,) may hold every touched cell; only those
     with probability > threshold count. Returns a flat dict (JSON-ready, NaN where a
-    metric is undefined, e.g. precision of an empty map).
+    metric is undefined, e.g. precision of an empty map), keys in :data:`MAP_SCORE_KEYS`
+    order.
     """
-    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
-    probabilities = np.asarray(probabilities, dtype=float).reshape(-1)
-    if len(centres) != len(probabilities):
-        raise ValueError(f'{len(centres)} centres but {len(probabilities)} probabilities')
-    keep = probabilities > threshold
-    occupied, weights = centres[keep], probabilities[keep]
-    explored = truth.explored_points
-
-    # Voxel sets.
-    occupied_cells = np.unique(cell_indices(occupied, lattice), axis=0)
-    occupied_keys = _keys(occupied_cells)
-    explored_cells = np.unique(cell_indices(explored, lattice), axis=0)
-    explored_keys = _keys(explored_cells)
-    surface_keys = np.unique(_keys(cell_indices(truth.points, lattice)))
-    intersection = np.intersect1d(occupied_keys, explored_keys).size
-    union = occupied_keys.size + explored_keys.size - intersection
-    correct = np.isin(occupied_keys, _dilated_keys(
-        np.unique(cell_indices(truth.points, lattice), axis=0), tolerance_cells))
-    recalled = np.isin(explored_keys, _dilated_keys(occupied_cells, tolerance_cells))
-
-    # Distances.
-    to_surface, nearest = truth.distance(occupied)
-    to_map = _nearest_distances(occupied, explored)
-    precision_f = _ratio(np.count_nonzero(to_surface <= fscore_distance), len(occupied))
-    recall_f = _ratio(np.count_nonzero(to_map <= fscore_distance), len(explored))
-    chamfer = (float(np.mean(to_surface)) + float(np.mean(to_map))) / 2.0 \
-        if len(occupied) and len(explored) else math.nan
-
-    offset = math.nan
-    if truth.normals is not None and len(occupied):
-        offset = float(np.mean(np.einsum('ij,ij->i', occupied - truth.points[nearest],
-                                         truth.normals[nearest])))
-
-    com_error, com_map, com_truth = math.nan, None, None
-    if len(explored):
-        com_truth = explored.mean(axis=0)
-    if len(occupied):
-        com_map = weights @ occupied / weights.sum()
-    if com_map is not None and com_truth is not None:
-        com_error = float(np.linalg.norm(com_map - com_truth))
-
-    # Strays: true off-surface fingertip positions, and the occupied cells that hold one
-    # but that the surface does not reach (a cell holding surface is right to be occupied).
-    far_strays = np.empty((0, 3))
-    if len(truth.strays):
-        far_strays = truth.strays[truth.distance(truth.strays)[0] > stray_surface_distance]
-    stray_cells = 0
-    if len(far_strays) and len(occupied):
-        holding = occupied_cells[np.isin(occupied_keys,
-                                         _keys(cell_indices(far_strays, lattice)))]
-        centres_holding = np.asarray(lattice.origin) + (holding + 0.5) * lattice.resolution
-        # Chebyshev distance to the nearest surface sample: inside the grown cell or not.
-        reach = truth.tree.query(centres_holding, k=1, p=np.inf)[0] if len(holding) \
-            else np.empty(0)
-        stray_cells = int(np.count_nonzero(reach > lattice.resolution / 2 + surface_margin))
-
-    mm = 1000.0
-    return {
+    occupied = _occupied(centres, probabilities, lattice, threshold)
+    scores = {
         'threshold': float(threshold),
-        'resolution_mm': lattice.resolution * mm,
-        'occupied_cells': int(len(occupied_cells)),
-        'explored_cells': int(len(explored_cells)),
-        'surface_cells': int(surface_keys.size),
-        'iou': _ratio(intersection, union),
-        'cell_precision': _ratio(np.count_nonzero(correct), correct.size),
-        'cell_recall': _ratio(np.count_nonzero(recalled), recalled.size),
-        'cell_fscore': _fscore(_ratio(np.count_nonzero(correct), correct.size),
-                               _ratio(np.count_nonzero(recalled), recalled.size)),
-        'chamfer_mm': chamfer * mm,
-        'map_to_surface_mm': float(np.mean(to_surface)) * mm if len(occupied) else math.nan,
-        'surface_to_map_mm': float(np.mean(to_map)) * mm if len(explored) and len(occupied)
-        else math.nan,
-        'precision_at_5mm': precision_f,
-        'recall_at_5mm': recall_f,
-        'fscore_at_5mm': _fscore(precision_f, recall_f),
-        'normal_offset_mm': offset * mm,
-        'com_error_mm': com_error * mm,
-        'com_map': None if com_map is None else [float(v) for v in com_map],
-        'com_truth': None if com_truth is None else [float(v) for v in com_truth],
-        'stray_cells': stray_cells,
-        'off_surface_cells': int(correct.size - np.count_nonzero(correct)),
-        'strays_far_from_surface': int(len(far_strays)),
-        'strays': int(len(truth.strays)),
-        'fscore_distance_mm': fscore_distance * mm,
-        'surface_margin_mm': surface_margin * mm,
+        'resolution_mm': lattice.resolution * _MM,
+        **_cell_scores(occupied, truth, lattice, tolerance_cells),
+        **_distance_scores(occupied.centres, truth, fscore_distance),
+        **_centre_of_mass_scores(occupied, truth.explored_points),
+        **_stray_scores(occupied, truth, lattice, stray_surface_distance, surface_margin),
+        'fscore_distance_mm': fscore_distance * _MM,
+        'surface_margin_mm': surface_margin * _MM,
         'tolerance_cells': int(tolerance_cells),
-        'explored_radius_mm': truth.explored_radius * mm,
-        'explored_samples': int(len(explored)),
+        'explored_radius_mm': truth.explored_radius * _MM,
+        'explored_samples': int(len(truth.explored_points)),
         'surface_samples': int(len(truth.points)),
         'contacts': int(len(truth.contacts)),
-        'sample_spacing_mm': truth.sample_spacing * mm,
+        'sample_spacing_mm': truth.sample_spacing * _MM,
     }
+    return {key: scores[key] for key in MAP_SCORE_KEYS}
 
 
 def point_metrics(points, truth: SurfaceTruth, fscore_distance: float = 0.005) -> dict:
@@ -345,3 +368,87 @@ METRIC_LABELS = {
     'p95_to_surface_mm': ('  points -> surface, 95th percentile (mm)', '{:.2f}'),
     'surface_to_points_mm': ('  explored surface -> points, mean (mm)', '{:.2f}'),
 }
+
+
+# ------------------------------------------------------------------ a map against its truth
+
+def find_truth(truth: str | None, bag: Path | None, map_path: Path) -> Path:
+    """The truth file of a session: ``truth`` if given, else the ``BAG.truth.npz`` sidecar
+    of ``bag`` or of the map (when the map is a bag). ValueError if there is none."""
+    if truth:
+        return Path(truth)
+    for candidate in ([bag] if bag else []) + ([map_path] if is_bag(map_path) else []):
+        sidecar = truth_path(candidate)
+        if sidecar.exists():
+            return sidecar
+    raise ValueError('no ground truth: give --truth TRUTH.npz (or --bag BAG with its '
+                     'BAG.truth.npz beside it)')
+
+
+def evaluate(cells: MapCells, truth: GroundTruth, thresholds, explored_radius: float = 0.005,
+             points: np.ndarray | None = None) -> dict:
+    """Metrics of the map at each threshold (and of the points, if given) against
+    ``truth``, which must already be in the map's frame: ``{'map': {'<threshold>':
+    scores}, 'points': scores or None}``."""
+    surface = SurfaceTruth(truth.surface_points, truth.contacts, truth.surface_normals,
+                           truth.stray_points, explored_radius)
+    results: dict = {'map': {}, 'points': None}
+    for threshold in thresholds:
+        results['map'][f'{threshold:g}'] = map_metrics(
+            cells.centres, cells.probabilities, cells.lattice, surface, threshold)
+    if points is not None:
+        results['points'] = point_metrics(points, surface)
+    return results
+
+
+def frame_check(cells: MapCells, truth: GroundTruth, threshold: float) -> str | None:
+    """A warning when the map and the truth seem to be in different frames."""
+    keep = cells.probabilities > threshold
+    if not keep.any() or len(truth.contacts) == 0:
+        return None
+    offset = np.linalg.norm(cells.centres[keep].mean(axis=0) - truth.contacts.mean(axis=0))
+    extent = np.linalg.norm(np.ptp(truth.surface_points, axis=0))
+    if offset > max(0.5 * extent, 0.03):
+        other = 'tracker' if truth.frame == 'object' else 'object'
+        return (f'the occupied cells are {offset * 100:.1f} cm from the true contacts: are the '
+                f'map and the truth in the same frame? (compared in the {truth.frame} frame; '
+                f'try --frame {other})')
+    return None
+
+
+# Rows of the printed table: the map's (one column per threshold) and the points'.
+MAP_TABLE_KEYS = ('occupied_cells', 'explored_cells', 'iou', 'cell_precision', 'cell_recall',
+                  'cell_fscore', 'precision_at_5mm', 'recall_at_5mm', 'fscore_at_5mm',
+                  'chamfer_mm', 'map_to_surface_mm', 'surface_to_map_mm', 'normal_offset_mm',
+                  'com_error_mm', 'stray_cells', 'off_surface_cells')
+POINT_TABLE_KEYS = ('points', 'precision_at_5mm', 'recall_at_5mm', 'fscore_at_5mm',
+                    'chamfer_mm', 'points_to_surface_mm', 'median_to_surface_mm',
+                    'p95_to_surface_mm', 'surface_to_points_mm')
+
+
+def format_metric(key: str, value) -> str:
+    """A score as its table shows it (``n/a`` where undefined)."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return 'n/a'
+    label_format = METRIC_LABELS[key][1]
+    return label_format.format(int(value) if label_format.endswith('d}') else value)
+
+
+def metrics_table(results: dict, column_names: list[str]) -> list[str]:
+    """The lines of the table of :func:`evaluate`'s results: a row per map score, a column
+    per threshold (``column_names``), then the registered points' scores if any."""
+    columns = list(results['map'].values())
+    width = max(len(METRIC_LABELS[k][0]) for k in METRIC_LABELS) + 2
+    lines = [f'{"metric":<{width}}' + ''.join(f'{name:>12}' for name in column_names)]
+    lines.append('-' * len(lines[0]))
+    for key in MAP_TABLE_KEYS:
+        lines.append(f'{METRIC_LABELS[key][0]:<{width}}'
+                     + ''.join(f'{format_metric(key, column[key]):>12}' for column in columns))
+    points = results.get('points')
+    if points is not None:
+        lines.append('')
+        lines.append(f'{"registered raw points":<{width}}{"points":>12}')
+        lines.append('-' * (width + 12))
+        for key in POINT_TABLE_KEYS:
+            lines.append(f'{METRIC_LABELS[key][0]:<{width}}{format_metric(key, points[key]):>12}')
+    return lines

@@ -1,28 +1,42 @@
 """Ground truth of a simulated session: the ``<bag folder>.truth.npz`` sidecar.
 
-The simulator writes, beside each bag folder ``BAG``, a file ``BAG.truth.npz`` with exactly
-these arrays (object frame = the object's own frame, metres, quaternions x, y, z, w):
+This module owns the format: its keys, where the file sits, the writer and the validating
+reader. The simulator (``inhand_sim``) writes it; the metrics and pictures (``inhand_tools``)
+and the launch scripts read it.
 
-============================  ==============================================================
-``object_name``               0-d str: which object was explored
-``static``                    0-d bool: object fixed on the table (static-mode session)
-``rate``                      0-d float: tracker frame rate (Hz)
-``seed``                      0-d int: the simulation's random seed
-``settings_json``             uint8: the simulation settings as JSON text
-``surface_points``            (N, 3) surface samples, uniform by area (N >= 100,000)
-``surface_normals``           (N, 3) outward unit normals at those samples
-``contacts``                  (M, 3) true (noise-free) fingertip contact points
-``contact_times``             (M,) their times (s)
-``stray_points``              (K, 3) true fingertip positions off the surface
-``stray_times``               (K,) their times (s)
-``object_times``              (T,) times of the object poses (s)
-``object_positions``          (T, 3) true pose of the object frame in the tracker frame
-``object_quaternions``        (T, 4)
-============================  ==============================================================
+Beside each bag folder ``BAG`` (e.g. ``bags/cat_static/``) sits ``BAG.truth.npz`` (e.g.
+``bags/cat_static.truth.npz``), an NPZ archive written with fixed zip timestamps (the same
+arrays give the same bytes), holding exactly these arrays. Positions in metres, times in
+seconds since the Unix epoch (the bag's stamps, ``stamp_ns / 1e9``), quaternions x, y, z, w;
+OBJECT frame = the object's own frame:
+
+=====================  ==========  ============================================================
+key                    shape       content
+=====================  ==========  ============================================================
+object_name            () str      which object was explored (``cat``, ``bottle``, ``mug``)
+static                 () bool     static session (no object sensor in the bag)
+rate                   () float    tracker frame rate, Hz
+seed                   () int      the simulation seed
+settings_json          (B,) uint8  UTF-8 JSON of every simulation setting
+surface_points         (N, 3)      dense surface samples, OBJECT frame, uniform by area,
+                                   N >= 100,000; float32 (about 20 nm at these sizes)
+surface_normals        (N, 3)      their outward unit normals; float32
+contacts               (M, 3)      noise-free contact points of every on-surface fingertip
+                                   sample, OBJECT frame, in time order; each on the surface
+contact_times          (M,)        their stamps
+stray_points           (K, 3)      noise-free fingertip positions off the surface (transits,
+                                   involuntary lifts, re-grasps), OBJECT frame, each at least
+                                   6 mm from the surface; same order
+stray_times            (K,)        their stamps
+object_times           (T,)        the stamp of every tracker frame
+object_positions       (T, 3)      true position of the OBJECT frame in the tracker frame
+object_quaternions     (T, 4)      its true orientation: ``p_tracker = R p_object + position``;
+                                   constant in static sessions
+=====================  ==========  ============================================================
 
 Which frame a map is in: a tracked map (``config/mapping.yaml``, registration ``tracked``)
-is in the ``object`` frame, which is the object sensor's frame; the truth is assumed to put
-the object frame on the object sensor (so the two frames are one). A static map
+is in the ``object`` frame, which is the object sensor's frame; the truth puts the object
+frame on the object sensor (so the two frames are one). A static map
 (``config/mapping_static.yaml``, no object sensor) is in the tracker frame
 ``polhemus_source``: :func:`in_frame` then moves the truth by the object's pose. Surface
 samples go by the first pose (constant in a static session); contacts and strays go by the
@@ -32,19 +46,29 @@ the fingertip really was in the tracker frame.
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from inhand_common.rotations import quaternion_normalize, rotate_vectors, slerp
-from inhand_sim.session import TRUTH_KEYS, truth_path  # the format's one definition
 
-__all__ = ['GroundTruth', 'TRUTH_KEYS', 'FRAMES', 'load_truth', 'truth_path_for_bag',
-           'in_frame', 'default_frame', 'pose_at', 'save_truth']
+__all__ = ['FRAMES', 'TRUTH_KEYS', 'GroundTruth', 'default_frame', 'in_frame', 'load_truth',
+           'pose_at', 'truth_path', 'write_truth']
+
+TRUTH_KEYS = ('object_name', 'static', 'rate', 'seed', 'settings_json', 'surface_points',
+              'surface_normals', 'contacts', 'contact_times', 'stray_points', 'stray_times',
+              'object_times', 'object_positions', 'object_quaternions')
 
 FRAMES = ('object', 'tracker')
+
+# What numpy raises for a file that is not an NPZ archive of plain arrays, or is damaged.
+_UNREADABLE = (OSError, ValueError, EOFError, zipfile.BadZipFile)
 
 _SHAPES = {  # key: (number of dimensions, trailing size or None)
     'surface_points': (2, 3), 'surface_normals': (2, 3), 'contacts': (2, 3),
@@ -83,12 +107,13 @@ class GroundTruth:
                                     axis=1).max())
 
 
-def truth_path_for_bag(bag) -> Path:
-    """``BAG.truth.npz`` beside the bag folder (or beside the .mcap/.db3 file's folder)."""
+def truth_path(bag) -> Path:
+    """The ground-truth sidecar of a bag: ``<bag folder>.truth.npz`` beside the bag folder
+    (given the folder, or the .mcap/.db3 file inside it)."""
     bag = Path(bag)
-    if bag.is_file() and bag.suffix in ('.mcap', '.db3'):
+    if bag.suffix in ('.mcap', '.db3') and not bag.is_dir():
         bag = bag.parent
-    return truth_path(bag)
+    return bag.with_name(bag.name + '.truth.npz')
 
 
 def _scalar(data, key, kind, path):
@@ -111,7 +136,7 @@ def load_truth(path) -> GroundTruth:
                          '<bag folder>.truth.npz beside each bag)')
     try:
         data = np.load(path, allow_pickle=False)
-    except Exception as error:  # numpy raises many kinds for a foreign file
+    except _UNREADABLE as error:
         raise ValueError(f'{path}: not a truth file (cannot read it as NPZ: '
                          f'{type(error).__name__}: {error})') from None
     if not isinstance(data, np.lib.npyio.NpzFile):
@@ -124,7 +149,7 @@ def load_truth(path) -> GroundTruth:
         try:
             arrays = {key: np.asarray(data[key], dtype=np.float64) for key in _SHAPES}
             settings_bytes = bytes(np.asarray(data['settings_json'], dtype=np.uint8))
-        except Exception as error:
+        except _UNREADABLE as error:
             raise ValueError(f'{path}: unreadable truth arrays ({type(error).__name__}: '
                              f'{error})') from None
         scalars = dict(object_name=_scalar(data, 'object_name', str, path),
@@ -209,20 +234,30 @@ def in_frame(truth: GroundTruth, frame: str) -> GroundTruth:
                    stray_points=moved(truth.stray_points, truth.stray_times), frame=frame)
 
 
-def save_truth(path, **arrays) -> Path:
-    """Write a truth file with the keys of :data:`TRUTH_KEYS` (for tests and tools that make
-    synthetic truth); ``settings`` (a dict) may be given instead of ``settings_json``."""
+def write_truth(path, arrays: Mapping[str, Any]) -> Path:
+    """Write a truth file holding exactly :data:`TRUTH_KEYS` from ``arrays``.
+
+    ``settings`` (a dict) may stand instead of ``settings_json``; the four scalars may be
+    plain Python values. The archive is stored uncompressed with fixed zip timestamps, so the
+    same arrays give the same bytes (the bundled bags are regenerated bit for bit).
+    """
+    arrays = dict(arrays)
     if 'settings' in arrays:
-        arrays['settings_json'] = np.frombuffer(json.dumps(arrays.pop('settings')).encode(),
-                                                dtype=np.uint8)
+        arrays['settings_json'] = np.frombuffer(
+            json.dumps(arrays.pop('settings')).encode('utf-8'), dtype=np.uint8)
     missing = [key for key in TRUTH_KEYS if key not in arrays]
     if missing:
-        raise ValueError(f'save_truth: missing {", ".join(missing)}')
+        raise ValueError(f'write_truth: missing {", ".join(missing)}')
     arrays['object_name'] = np.array(str(arrays['object_name']))
     arrays['static'] = np.array(bool(arrays['static']))
     arrays['rate'] = np.array(float(arrays['rate']))
-    arrays['seed'] = np.array(int(arrays['seed']))
+    arrays['seed'] = np.array(int(arrays['seed']), dtype=np.int64)
     path = Path(path)
-    with open(path, 'wb') as stream:
-        np.savez_compressed(stream, **{key: arrays[key] for key in TRUTH_KEYS})
+    with zipfile.ZipFile(path, 'w', compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
+        for key in TRUTH_KEYS:
+            buffer = io.BytesIO()
+            np.lib.format.write_array(buffer, np.asanyarray(arrays[key]), allow_pickle=False)
+            info = zipfile.ZipInfo(f'{key}.npy', date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            archive.writestr(info, buffer.getvalue())
     return path

@@ -19,8 +19,14 @@ import numpy as np
 from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.occupancy import OccupancyGrid
 
-__all__ = ['REGISTERED_DTYPE', 'MAP_CELL_DTYPE', 'pack_registered', 'unpack_registered',
-           'MapClouds', 'map_cells']
+__all__ = [
+    'MAP_CELL_DTYPE',
+    'REGISTERED_DTYPE',
+    'MapClouds',
+    'map_cells',
+    'pack_registered',
+    'unpack_registered',
+]
 
 REGISTERED_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'finger', 't'],
                              'formats': ['<f4', '<f4', '<f4', 'u1', '<f8'],
@@ -58,15 +64,15 @@ class MapClouds:
         size = grid.spec.cells_per_axis ** 3
         self._touched = np.empty((size, 6), dtype=np.float32)
         self._occupied = np.empty((size, 6), dtype=np.float32)
+        self._buffers = kernels.CloudBuffers(self._touched, self._touched.view(np.uint32),
+                                             self._occupied, self._occupied.view(np.uint32))
 
     def __call__(self, threshold: float) -> tuple[np.ndarray, np.ndarray]:
         grid = self.grid
         time_origin = grid.earliest_touch if math.isfinite(grid.earliest_touch) else 0.0
         touched, occupied = kernels.gather_cells(
-            grid.log_odds.reshape(-1), grid.probabilities().reshape(-1), grid.hits.reshape(-1),
-            grid.first_touch.reshape(-1), time_origin, grid.prior_log_odds, grid.spec.origin,
-            grid.spec.resolution, grid.spec.cells_per_axis, float(threshold), self._touched,
-            self._touched.view(np.uint32), self._occupied, self._occupied.view(np.uint32))
+            grid.cell_arrays, grid.geometry, grid.prior_log_odds, float(threshold), time_origin,
+            self._buffers)
         return (self._touched[:touched].view(MAP_CELL_DTYPE).reshape(-1),
                 self._occupied[:occupied].view(MAP_CELL_DTYPE).reshape(-1))
 

@@ -1,6 +1,6 @@
 """ROS 2 node ``occupancy_node``: registered points -> probabilistic voxel map.
 
-Subscribes ``registration/points`` (PointCloud2, layout in clouds.py). Publishes, at
+Subscribes ``registration/points`` (PointCloud2, layout in cloud_layouts.py). Publishes, at
 ``publish_rate`` when the map changed, reliable and transient-local (a late subscriber
 gets the latest map):
 
@@ -22,8 +22,6 @@ the map published after a stream ends holds all of it.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from geometry_msgs.msg import PointStamped
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -32,11 +30,12 @@ from std_srvs.srv import Trigger
 
 from inhand_common.node_runner import run_node
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
+from inhand_common.ros_names import MAP_FRAME
 from inhand_common.ros_parameters import declare_parameters
-from inhand_mapping.clouds import unpack_registered
+from inhand_mapping.cloud_layouts import unpack_registered
 from inhand_mapping.map_products import MapProducts, save_map
-from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, make_grid
-from inhand_mapping.qos import DATA_QOS, LATCHED_QOS, MAP_FRAME
+from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, OccupancyConfig
+from inhand_mapping.qos import DATA_QOS, LATCHED_QOS
 
 MAP_QOS = LATCHED_QOS
 POINTS_QOS = DATA_QOS
@@ -45,9 +44,10 @@ POINTS_QOS = DATA_QOS
 class OccupancyNode(Node):
     def __init__(self):
         super().__init__('occupancy_node')
-        self.values = declare_parameters(self, OCCUPANCY_PARAMETERS)
-        self.grid = make_grid(self.values)
-        self.products = MapProducts(self.grid, self.values['occupied_threshold'])
+        self.config = OccupancyConfig.from_parameters(
+            declare_parameters(self, OCCUPANCY_PARAMETERS))
+        self.grid = self.config.make_grid()
+        self.products = MapProducts(self.grid, self.config.occupied_threshold)
         self._changed = False
         self._idle_ticks = 0   # publish periods since points last came
         self._latest_stamp = None
@@ -57,7 +57,7 @@ class OccupancyNode(Node):
         self._com = self.create_publisher(PointStamped, 'occupancy/center_of_mass', MAP_QOS)
         self.create_service(Trigger, 'occupancy/reset', self._on_reset)
         self.create_service(Trigger, 'occupancy/save', self._on_save)
-        self.create_timer(1.0 / self.values['publish_rate'], self._publish)
+        self.create_timer(1.0 / self.config.publish_rate, self._publish)
         spec, model = self.grid.spec, self.grid.model
         self.get_logger().info(
             f'map: {spec.cells_per_axis}^3 cells of {spec.resolution * 1000:g} mm, '
@@ -113,8 +113,8 @@ class OccupancyNode(Node):
     def _on_save(self, _request, response):
         self._apply_held()
         try:
-            paths = save_map(self.grid, Path(self.values['output_dir']), self.values['map_name'],
-                             self.values['occupied_threshold'], MAP_FRAME,
+            paths = save_map(self.grid, self.config.output_dir, self.config.map_name,
+                             self.config.occupied_threshold, MAP_FRAME,
                              extra={'node': self.get_fully_qualified_name()})
         except OSError as error:
             response.success = False

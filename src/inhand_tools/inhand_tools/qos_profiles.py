@@ -1,98 +1,28 @@
-"""The ROS side shared by bag_replay, bag_record and topic_echo: start/stop, QoS, the graph.
+"""The QoS profiles the bag tools publish and subscribe with, and the QoS a bag records.
 
-``RosSession`` starts rclpy the way ``inhand_common.node_runner.run_node`` does: our own
-SIGINT/SIGTERM handlers only set ``stop``, so every tool ends its loop and then closes its
-bag, publishers or output with a valid context (rclpy's handlers would shut the context
-down under it). The tools are loops of their own rather than plain spinners (a replay
-publishes on a timetable, the recorder drains its queues before closing), which is why
-they do not call ``run_node`` itself. A second signal while stopping raises
-KeyboardInterrupt where that is safe (``second_signal_interrupts``).
+- ``replay_qos``: a bag_replay publisher's profile from the QoS the bag recorded as offered.
+- ``matching_qos``: a subscription profile that matches the publishers seen on the graph
+  (as ``ros2 topic echo`` / ``ros2 bag record`` choose it): reliable when every publisher
+  is reliable, transient-local when every publisher is, so a subscription never asks for
+  more than is offered.
+- ``bag_qos``: an rclpy profile as the rosbags ``Qos`` stored in a bag's metadata.
+- ``describe_qos``: one line for the user ("reliable, volatile, depth 1000").
 
-QoS: the recorded offered QoS (rosbags ``Qos``) <-> rclpy ``QoSProfile``, and the profile
-that matches the publishers seen on the graph (as ``ros2 topic echo`` / ``ros2 bag record``
-choose it): reliable when every publisher is reliable, transient-local when every
-publisher is, so a subscription never asks for more than is offered.
+Imports rclpy: the commands import this module only once their arguments are checked.
 """
 
 from __future__ import annotations
 
-import signal
-import time
-from typing import Iterable
+from collections.abc import Iterable
 
-import rclpy
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 
-__all__ = ['RosSession', 'StopFlag', 'bag_qos', 'describe_qos', 'graph_types', 'matching_qos',
-           'replay_qos', 'wait_until']
+__all__ = ['bag_qos', 'describe_qos', 'matching_qos', 'replay_qos']
 
 DEFAULT_DEPTH = 1000          # volatile topics without a recorded depth
 LATCHED_DEFAULT_DEPTH = 1     # transient-local without a recorded depth: the latest value
 INFINITE_NS = 2**63 - 1
 
-
-class StopFlag:
-    """Set from a signal handler, polled by the loops.
-
-    A plain flag rather than ``threading.Event``: ``Event.set()`` takes a lock that the
-    interrupted main thread may be holding inside ``Event.wait()``, a rare deadlock.
-    """
-
-    def __init__(self):
-        self._set = False
-
-    def set(self) -> None:
-        self._set = True
-
-    def is_set(self) -> bool:
-        return self._set
-
-    def wait(self, timeout: float | None = None) -> bool:
-        """Sleep up to ``timeout`` (forever if None) in short slices; True if set."""
-        end = None if timeout is None else time.monotonic() + timeout
-        while not self._set:
-            left = 0.05 if end is None else end - time.monotonic()
-            if left <= 0:
-                break
-            time.sleep(min(left, 0.05))
-        return self._set
-
-
-class RosSession:
-    """``with RosSession(argv) as session:`` rclpy initialised; ``session.stop`` on a signal."""
-
-    def __init__(self, args: list[str], second_signal_interrupts: bool = True):
-        self.args = list(args)
-        self.stop = StopFlag()
-        self.signal: int | None = None
-        self._escalate = second_signal_interrupts
-        self._previous = {}
-
-    def _on_signal(self, signum, _frame) -> None:
-        if self.stop.is_set() and self._escalate:
-            raise KeyboardInterrupt
-        self.signal = signum
-        self.stop.set()
-
-    def __enter__(self) -> 'RosSession':
-        self._previous = {sig: signal.signal(sig, self._on_signal)
-                          for sig in (signal.SIGINT, signal.SIGTERM)}
-        rclpy.init(args=self.args, signal_handler_options=SignalHandlerOptions.NO)
-        return self
-
-    def __exit__(self, *exc) -> None:
-        rclpy.try_shutdown()
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-
-    def sleep(self, seconds: float) -> bool:
-        """Sleep unless stopped; True if stopped."""
-        return self.stop.wait(seconds) if seconds > 0 else self.stop.is_set()
-
-
-# -- QoS ---------------------------------------------------------------------------------
 
 def _recorded_depth(recorded: list) -> int | None:
     from rosbags.interfaces import QosHistory
@@ -165,8 +95,7 @@ def _bag_time(duration) -> object:
 
 def bag_qos(profile: QoSProfile):
     """rosbags ``Qos`` of an rclpy profile (a publisher's offered QoS, for the bag)."""
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
-                                    QosReliability)
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
 
     def convert(enum_type, value):
         return enum_type.__members__.get(getattr(value, 'name', ''), enum_type.UNKNOWN)
@@ -178,23 +107,3 @@ def bag_qos(profile: QoSProfile):
                liveliness=convert(QosLiveliness, profile.liveliness),
                liveliness_lease_duration=_bag_time(profile.liveliness_lease_duration),
                avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions))
-
-
-# -- graph -------------------------------------------------------------------------------
-
-def graph_types(node: Node) -> dict[str, list[str]]:
-    """Absolute topic name -> its types, as the graph knows them now."""
-    return {name: list(types) for name, types in node.get_topic_names_and_types()}
-
-
-def wait_until(predicate, stop: StopFlag, timeout: float | None,
-               period: float = 0.05) -> bool:
-    """Poll ``predicate`` until true (True), ``timeout`` (False) or ``stop`` (False)."""
-    deadline = None if timeout is None else time.monotonic() + timeout
-    while not stop.is_set():
-        if predicate():
-            return True
-        if deadline is not None and time.monotonic() >= deadline:
-            return False
-        stop.wait(period)
-    return False

@@ -28,10 +28,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ['View', 'OBLIQUE', 'SIDE', 'TOP', 'Camera', 'UP_AXES', 'probability_colours',
-           'render_cells', 'render_points', 'annotate', 'titled', 'hstack', 'grid_figure',
-           'probability_legend', 'key_legend', 'BACKGROUND', 'bounds_of', 'ViewBox',
-           'box_of', 'robust_box', 'default_margin', 'outside_note']
+__all__ = ['BACKGROUND', 'OBLIQUE', 'SIDE', 'TOP', 'UP_AXES', 'Camera', 'View', 'ViewBox',
+           'annotate', 'bounds_of', 'box_of', 'default_margin', 'grid_figure', 'hstack',
+           'key_legend', 'outside_note', 'probability_colours', 'probability_legend',
+           'render_cells', 'render_points', 'robust_box', 'titled']
 
 BACKGROUND = (255, 255, 255)
 SUPERSAMPLE = 2
@@ -135,7 +135,7 @@ class ViewBox:
         return np.array([[bounds[i][0], bounds[j][1], bounds[k][2]]
                          for i in (0, 1) for j in (0, 1) for k in (0, 1)])
 
-    def grown(self, margin) -> 'ViewBox':
+    def grown(self, margin) -> ViewBox:
         """The box grown by ``margin`` (m, scalar or per axis), framing the same points
         with that much more room."""
         margin = np.asarray(margin, dtype=float)
@@ -222,7 +222,7 @@ class Camera:
         self.area = (0.0, 0.0, float(self.size), float(self.size))
 
     @classmethod
-    def for_box(cls, view: View, box: ViewBox, size: int, up: str = '-z') -> 'Camera':
+    def for_box(cls, view: View, box: ViewBox, size: int, up: str = '-z') -> Camera:
         """The camera showing ``box`` as large as it fits in the panel's free area (below
         the title and subtitles, above the scale bar, a little in from the sides): its
         framing points with the box's margin around them, else its corners."""

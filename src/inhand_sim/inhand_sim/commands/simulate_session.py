@@ -19,8 +19,9 @@ import sys
 import time
 
 from inhand_common.cli_types import number
+from inhand_common.ground_truth import truth_path
 from inhand_sim.objects import OBJECT_NAMES
-from inhand_sim.session import SessionSettings, simulate, truth_path, write_session
+from inhand_sim.session import SessionSettings, simulate, write_session
 
 EXIT_WRITE_FAILED = 1
 EXIT_BAD_ARGUMENTS = 2

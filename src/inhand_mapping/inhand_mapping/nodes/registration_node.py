@@ -3,7 +3,7 @@
 Subscribes ``polhemus/<finger>/pose`` for each finger name and, in tracked mode,
 ``polhemus/<object_name>/pose`` (geometry_msgs/PoseStamped, reliable). Publishes every
 ``publish_period`` the points registered since the last message on
-``registration/points`` (sensor_msgs/PointCloud2, layout in clouds.py, frame ``object``),
+``registration/points`` (sensor_msgs/PointCloud2, layout in cloud_layouts.py, frame ``object``),
 and once, latched, the pose of the ``object`` frame in the tracker frame on
 ``registration/object_frame`` (geometry_msgs/PoseStamped: the object sensor's first pose;
 identity in static mode).
@@ -24,12 +24,13 @@ from sensor_msgs.msg import PointCloud2
 
 from inhand_common.node_runner import run_node
 from inhand_common.point_cloud import serialize_point_cloud2
+from inhand_common.ros_names import MAP_FRAME, TRACKER_FRAME
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
-from inhand_mapping.clouds import pack_registered
-from inhand_mapping.mapping_config import REGISTRATION_PARAMETERS, make_registrar
-from inhand_mapping.qos import DATA_QOS, LATCHED_QOS, MAP_FRAME
+from inhand_mapping.cloud_layouts import pack_registered
+from inhand_mapping.mapping_config import REGISTRATION_PARAMETERS, RegistrationConfig
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
+from inhand_mapping.qos import DATA_QOS, LATCHED_QOS
 
 POSE_QOS = POINTS_QOS = DATA_QOS
 
@@ -37,30 +38,31 @@ POSE_QOS = POINTS_QOS = DATA_QOS
 class RegistrationNode(Node):
     def __init__(self):
         super().__init__('registration_node')
-        self.values = declare_parameters(self, REGISTRATION_PARAMETERS)
-        self.registrar = make_registrar(self.values)
-        self.fingers = list(self.values['finger_names'])
+        self.config = RegistrationConfig.from_parameters(
+            declare_parameters(self, REGISTRATION_PARAMETERS))
+        self.registrar = self.config.make_registrar()
+        self.fingers = list(self.config.finger_names)
         # Callbacks only keep the raw messages; the timer decodes them in batches
         # (pose_cdr.decode_pose_stamped_many) and registers them: at 240 Hz x 4 stations,
         # and much more in a fast replay, per-message Python work is what limits the node.
         self._raw_fingertips: list[list[bytes]] = [[] for _ in self.fingers]
         self._raw_objects: list[bytes] = []
-        for index, name in enumerate(self.fingers):
-            self.create_subscription(PoseStamped, f'polhemus/{name}/pose',
-                                     self._raw_fingertips[index].append, POSE_QOS, raw=True)
-        if self.values['mode'] == 'tracked':
-            self.create_subscription(PoseStamped, f'polhemus/{self.values["object_name"]}/pose',
+        for topic, index in self.config.finger_topics.items():
+            self.create_subscription(PoseStamped, topic, self._raw_fingertips[index].append,
+                                     POSE_QOS, raw=True)
+        if self.config.object_topic is not None:
+            self.create_subscription(PoseStamped, self.config.object_topic,
                                      self._raw_objects.append, POSE_QOS, raw=True)
         self._points = self.create_publisher(PointCloud2, 'registration/points', POINTS_QOS)
         self._object_frame = self.create_publisher(PoseStamped, 'registration/object_frame',
                                                    LATCHED_QOS)
         self._frame_sent = False
-        self.create_timer(self.values['publish_period'], self._publish)
-        if self.values['mode'] == 'static':
+        self.create_timer(self.config.publish_period, self._publish)
+        if not self.config.tracked:
             self._send_object_frame(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
         self.get_logger().info(
-            f"registering {', '.join(self.fingers)} in {self.values['mode']} mode"
-            + (f" against {self.values['object_name']}" if self.values['mode'] == 'tracked'
+            f"registering {', '.join(self.fingers)} in {self.config.mode} mode"
+            + (f' against {self.config.object_name}' if self.config.tracked
                else ' (map frame = tracker frame)'))
 
     def _take_received(self) -> None:
@@ -82,7 +84,7 @@ class RegistrationNode(Node):
 
     def _send_object_frame(self, position, quaternion) -> None:
         msg = PoseStamped()
-        msg.header.frame_id = 'polhemus_source'
+        msg.header.frame_id = TRACKER_FRAME
         msg.header.stamp = self.get_clock().now().to_msg()
         p, q = msg.pose.position, msg.pose.orientation
         p.x, p.y, p.z = (float(v) for v in position)

@@ -1,0 +1,86 @@
+"""``build_map``: the map the registration and occupancy nodes would build, from a bag.
+
+    build_map BAG [--config config/mapping.yaml] [--output-dir maps] [--name NAME]
+                  [--set NAME=VALUE ...]
+
+Reads a rosbag2 bag (MCAP or sqlite3) holding the driver's ``polhemus/<name>/pose``
+topics, runs the same registration and occupancy code with the same parameters (the
+``registration_node`` and ``occupancy_node`` sections of the YAML file, then ``--set``
+overrides), and writes ``<name>.npz`` and ``<name>.ply`` as ``occupancy/save`` would. No
+DDS involved. A truncated bag is reported with what could be read, and the map of that
+part is still written (exit code 1); a bag without the topics is refused (exit code 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from inhand_common.parameters import ParameterError
+from inhand_common.ros_names import MAP_FRAME
+from inhand_mapping.bag_mapping import build_map_from_bag
+from inhand_mapping.map_products import MapProducts, save_map
+from inhand_mapping.mapping_config import load_parameters, parse_overrides
+
+EXIT_TRUNCATED = 1
+EXIT_BAD_INPUT = 2
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog='build_map', description=__doc__.split('\n\n')[0],
+                                     epilog=__doc__.split('\n\n', 2)[2],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('bag', type=Path, help='bag folder, or .mcap / .db3 file')
+    parser.add_argument('--config', help='ROS parameter file with registration_node and '
+                        'occupancy_node sections (e.g. config/mapping.yaml)')
+    parser.add_argument('--output-dir', type=Path, default=Path('maps'))
+    parser.add_argument('--name', help='file name stem (default: the bag name)')
+    parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                        help='override a parameter (repeatable)')
+    parser.add_argument('--quiet', action='store_true', help='no progress line')
+    args = parser.parse_args(argv)
+    try:
+        registration, occupancy = load_parameters(args.config, parse_overrides(args.set))
+        if not args.bag.exists():
+            raise ValueError(f'{args.bag}: no such bag')
+        start = time.monotonic()
+        result = build_map_from_bag(args.bag, registration, occupancy, progress=not args.quiet)
+    except (ParameterError, ValueError, OSError) as error:
+        print(f'build_map: {error}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    elapsed = time.monotonic() - start
+    grid, registrar, report = result['grid'], result['registrar'], result['report']
+    threshold = occupancy.occupied_threshold
+    name = args.name or args.bag.name.rsplit('.', 1)[0] or 'map'
+    paths = save_map(grid, args.output_dir, name, threshold, MAP_FRAME,
+                     extra={'bag': str(args.bag), 'truncated': report['truncated']})
+    stats = registrar.stats
+    span = ((report['bag_end'] or 0) - (report['bag_start'] or 0)) * 1e-9
+    products = MapProducts(grid, threshold)
+    touched, occupied = products.cells()
+    frame = products.object_frame()
+    print(f'build_map: {report["messages"]} messages, {span:.1f} s of data in {elapsed:.2f} s '
+          f'({span / elapsed if elapsed > 0 else float("inf"):.1f}x real time)')
+    print(f'  registration ({registration.mode}): {stats.registered} of '
+          f'{stats.received} fingertip positions; dropped {stats.dropped_gap} (object pose '
+          f'gap), {stats.dropped_before_object} (before the first object pose), '
+          f'{stats.dropped_invalid} (invalid)')
+    print(f'  map: {grid.counts.integrated} points integrated, {grid.counts.outside} outside '
+          f'the workspace, {grid.counts.invalid} invalid; {len(touched)} cells touched, '
+          f'{len(occupied)} above {threshold:g}')
+    if frame is not None:
+        print('  centre of mass (object frame): '
+              + ', '.join(f'{v:+.4f}' for v in frame.centre_of_mass) + ' m')
+    print('  wrote ' + ', '.join(str(p) for p in paths))
+    if report['truncated']:
+        print(f'build_map: the bag is truncated or damaged: {report["truncated"]}. The map '
+              f'above is built from the {report["messages"]} messages that could be read.',
+              file=sys.stderr)
+        return EXIT_TRUNCATED
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

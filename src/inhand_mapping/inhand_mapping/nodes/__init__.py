@@ -1,0 +1,1 @@
+"""The ROS nodes of the mapping graph: thin adapters from messages to the library calls."""

@@ -1,0 +1,184 @@
+"""``map_metrics``: how close a map (and the registered points) is to the true surface.
+
+    map_metrics MAP [--truth TRUTH.npz] [--bag BAG] [--threshold 0.8 ...]
+                    [--frame object|tracker] [--explored-radius 0.005] [--json OUT]
+
+MAP is one of
+  * an NPZ saved by the occupancy node (``occupancy/save``) or ``build_map``: every touched
+    cell with its probability, so any threshold can be evaluated;
+  * a PLY saved beside it (only the cells above the threshold it was saved with);
+  * a bag holding a recorded ``occupancy/cloud`` (every touched cell) or
+    ``occupancy/occupied`` cloud: the last message is used.
+
+TRUTH is the simulator's ``<bag folder>.truth.npz``; it defaults to the sidecar of
+``--bag`` (or of MAP when MAP is a bag). ``--bag`` also gives the registered raw points:
+the bag's fingertip poses through the same registration as ``build_map`` (tracked for a
+map in the object frame, static for one in the tracker frame; ``--config`` for its
+parameters). The frame defaults to the tracker frame for static sessions and the object
+frame otherwise. The metric definitions are in ``inhand_tools/map_quality.py``.
+
+Exit status: 0 done, 2 bad input (missing or foreign file, bad option).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from inhand_common.ground_truth import FRAMES, GroundTruth, default_frame, in_frame, load_truth
+from inhand_tools.bag_points import BagPoints, bag_mode_for_frame, read_bag_points
+from inhand_tools.map_cells import MapCells, load_map
+from inhand_tools.map_quality import evaluate, find_truth, frame_check, metrics_table
+
+__all__ = ['EXIT_BAD_INPUT', 'main']
+
+PROG = 'map_metrics'
+EXIT_BAD_INPUT = 2
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n\n')[0],
+                                     epilog=__doc__.split('\n\n', 1)[1],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('map', type=Path, help='map: NPZ, PLY, or a bag with an occupancy cloud')
+    parser.add_argument('--truth', help='simulator truth file (default: the bag\'s sidecar '
+                        'BAG.truth.npz)')
+    parser.add_argument('--bag', type=Path, help='session bag: registered raw points are '
+                        'scored too')
+    parser.add_argument('--threshold', type=float, nargs='+', default=[0.8],
+                        help='occupied = probability above this (several give several '
+                        'columns; default 0.8)')
+    parser.add_argument('--frame', choices=FRAMES, help='frame the map is in (default: '
+                        'tracker for a static session, object otherwise)')
+    parser.add_argument('--explored-radius', type=float, default=0.005, metavar='M',
+                        help='surface within this distance (m) of a true contact counts as '
+                        'explored (default 0.005)')
+    parser.add_argument('--resolution', type=float, metavar='M',
+                        help='cell size (m) of a PLY or cloud map (default: inferred)')
+    parser.add_argument('--config', help='ROS parameter file for the registration of --bag '
+                        '(registration_node section; default: the node defaults)')
+    parser.add_argument('--json', type=Path, metavar='OUT', help='also write the results here')
+    return parser
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    for threshold in args.threshold:
+        if not 0.0 <= threshold < 1.0:
+            raise ValueError(f'--threshold {threshold:g}: must be in [0, 1)')
+    if not args.explored_radius > 0:
+        raise ValueError('--explored-radius must be positive')
+    if args.resolution is not None and not args.resolution > 0:
+        raise ValueError('--resolution must be positive')
+
+
+@dataclass
+class _Inputs:
+    """What is scored: the map, the truth (in the map's frame) and the bag's points."""
+
+    cells: MapCells
+    truth_path: Path
+    truth: GroundTruth
+    frame: str
+    points: BagPoints | None
+
+
+def _load_inputs(args: argparse.Namespace) -> _Inputs:
+    cells = load_map(args.map, args.resolution)
+    truth_path = find_truth(args.truth, args.bag, args.map)
+    truth = load_truth(truth_path)
+    frame = args.frame or default_frame(truth)
+    truth = in_frame(truth, frame)
+    points = None
+    if args.bag is not None:
+        points = read_bag_points(args.bag, bag_mode_for_frame(frame), args.config)
+    return _Inputs(cells, truth_path, truth, frame, points)
+
+
+def _print_summary(args: argparse.Namespace, inputs: _Inputs, results: dict) -> None:
+    """What was compared (stdout) and the warnings and notes (stderr)."""
+    cells, truth, points = inputs.cells, inputs.truth, inputs.points
+    explored = next(iter(results['map'].values()))
+    print(f'map:   {cells.describe()}')
+    print(f'truth: {inputs.truth_path}: object {truth.object_name!r}, '
+          f'{"static" if truth.static else "tracked"} session, '
+          f'{len(truth.surface_points)} surface samples, {len(truth.contacts)} contacts, '
+          f'{len(truth.stray_points)} stray points; compared in the {inputs.frame} frame')
+    print(f'explored surface: {explored["explored_samples"]} of {explored["surface_samples"]} '
+          f'samples ({explored["explored_samples"] / explored["surface_samples"]:.1%}) within '
+          f'{args.explored_radius * 1000:g} mm of a true contact; '
+          f'{explored["explored_cells"]} cells')
+    if points is not None:
+        stats = points.stats
+        print(f'bag:   {args.bag}: {len(points.registered)} of {len(points.raw)} fingertip '
+              f'positions registered ({points.mode})'
+              + (f'; dropped {stats.dropped_gap} (object pose gap), '
+                 f'{stats.dropped_before_object} (before the first object pose)'
+                 if points.mode == 'tracked' else ''))
+    if cells.problem:
+        print(f'{PROG}: note: {args.map} is damaged: {cells.problem}',
+              file=sys.stderr)
+    warning = frame_check(cells, truth, min(args.threshold))
+    if warning:
+        print(f'{PROG}: warning: {warning}', file=sys.stderr)
+    lowest = float(cells.probabilities.min())
+    incomplete = [t for t in args.threshold if not cells.complete and t < lowest]
+    if incomplete:
+        print(f'{PROG}: note: the {cells.kind} holds only the cells it was saved with '
+              f'(lowest probability {lowest:.3f}); threshold(s) '
+              f'{", ".join(f"{t:g}" for t in incomplete)} see those cells only', file=sys.stderr)
+
+
+def _jsonable(value):
+    """``value`` with NaN and infinities as None and numpy scalars as Python ones."""
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, np.generic):
+        return _jsonable(value.item())
+    return value
+
+
+def _write_json(args: argparse.Namespace, inputs: _Inputs, results: dict) -> None:
+    document = {'map': str(args.map), 'map_kind': inputs.cells.kind,
+                'truth': str(inputs.truth_path), 'frame': inputs.frame,
+                'bag': None if args.bag is None else str(args.bag),
+                'explored_radius_mm': args.explored_radius * 1000,
+                'thresholds': results['map'], 'points': results['points']}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(_jsonable(document), indent=2) + '\n')
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        _check_options(args)
+        inputs = _load_inputs(args)
+    except (ValueError, OSError) as error:  # ParameterError and BagError are ValueErrors
+        print(f'{PROG}: {error}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    results = evaluate(inputs.cells, inputs.truth, args.threshold, args.explored_radius,
+                       None if inputs.points is None else inputs.points.registered)
+    _print_summary(args, inputs, results)
+    print()
+    print('\n'.join(metrics_table(results, [f'map > {t:g}' for t in args.threshold])))
+    if args.json:
+        try:
+            _write_json(args, inputs, results)
+        except OSError as error:
+            print(f'{PROG}: cannot write {args.json}: {error}', file=sys.stderr)
+            return EXIT_BAD_INPUT
+        print(f'\nwrote {args.json}')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
