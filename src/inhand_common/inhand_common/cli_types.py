@@ -1,4 +1,5 @@
-"""argparse types for numbers with bounds, so every command refuses bad values alike.
+"""The commands' argparse pieces: a parser whose help is the command's docstring, and types
+for numbers with bounds, so every command refuses bad values alike.
 
 ``parser.add_argument('--rate', type=number(above=0))`` refuses ``0``, ``nan`` and
 ``fast`` with a message naming the value and the allowed range.
@@ -10,7 +11,18 @@ import argparse
 import math
 from collections.abc import Callable
 
-__all__ = ['non_negative_float', 'number', 'positive_float']
+__all__ = ['command_parser', 'non_negative_float', 'number', 'positive_float']
+
+
+def command_parser(prog: str, doc: str, epilog_from: int = 1) -> argparse.ArgumentParser:
+    """A parser whose ``--help`` is the command module's docstring: its first paragraph on
+    one line as the description, the paragraphs from ``epilog_from`` on (past a usage block,
+    say) as the epilog, laid out as written."""
+    parts = doc.split('\n\n')
+    return argparse.ArgumentParser(
+        prog=prog, description=parts[0].replace('\n', ' ').replace('``', ''),
+        epilog='\n\n'.join(parts[epilog_from:]),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
 
 
 def number(above: float | None = None, at_least: float | None = None,

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, TypeAlias
@@ -64,7 +65,8 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
         with data:
             metadata: dict[str, Any] = json.loads(bytes(data['metadata']).decode())
             arrays = {k: data[k] for k in ('log_odds', 'hits', 'first_touch')}
-    except Exception as error:  # numpy/zipfile raise many kinds for a foreign file
+    # what numpy and zipfile raise for a foreign or damaged file, a missing key
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as error:
         raise ValueError(f'{path}: not a map saved by this software '
                          f'({type(error).__name__}: {error})') from None
     if metadata.get('format_version') == 1:

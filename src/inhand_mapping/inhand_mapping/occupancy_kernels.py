@@ -1,4 +1,4 @@
-"""Compiled inner loops of the occupancy update (numba), used only by occupancy.py and clouds.py.
+"""Compiled inner loops of the occupancy update (numba), used only by occupancy.py and cloud_layouts.py.
 
 Why compiled: the update is a scatter with per-visit state (each sample adds to its cell,
 or to 27 cells, unless its visit has already given its measurement's worth), which in

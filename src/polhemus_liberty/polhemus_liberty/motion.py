@@ -16,6 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
+from inhand_common.bag_source import BagSource
 from inhand_common.ros_names import station_pose_topic
 from inhand_common.rotations import (
     euler_zyx_to_quaternion,
@@ -173,22 +174,21 @@ def load_pose_bag(path: str | Path, station_by_name: Mapping[str, int],
 
     Messages with the same header stamp form one tracker frame, as the driver publishes.
     """
-    from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     wanted = {station_pose_topic(name): station for name, station in station_by_name.items()}
     by_stamp: dict[int, dict[int, Pose]] = {}
-    with AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-        connections = [c for c in reader.connections if c.topic.lstrip('/') in wanted]
-        if not connections:
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with BagSource(Path(path)) as source:   # BagError (a ValueError) for an unusable bag
+        topics = {name for name in source.topics if name in wanted}
+        if not topics:
             raise ValueError(f'{path}: no topics polhemus/<name>/pose for names '
-                             f'{sorted(station_by_name)}; topics are '
-                             f'{sorted({c.topic for c in reader.connections})}')
-        for connection, _, rawdata in reader.messages(connections=connections):
-            msg = reader.deserialize(rawdata, connection.msgtype)
+                             f'{sorted(station_by_name)}; topics are {sorted(source.topics)}')
+        for topic, _, rawdata in source.messages(topics):
+            msg = store.deserialize_cdr(rawdata, source.topics[topic].msgtype)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             p, o = msg.pose.position, msg.pose.orientation
-            by_stamp.setdefault(stamp, {})[wanted[connection.topic.lstrip('/')]] = (
+            by_stamp.setdefault(stamp, {})[wanted[topic]] = (
                 np.array([p.x, p.y, p.z]), np.array([o.x, o.y, o.z, o.w]))
     stamps = sorted(by_stamp)
     stations = tuple(sorted({s for frame in by_stamp.values() for s in frame}))

@@ -13,11 +13,11 @@ part is still written (exit code 1); a bag without the topics is refused (exit c
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
+from inhand_common.cli_types import command_parser
 from inhand_common.parameters import ParameterError
 from inhand_common.ros_names import MAP_FRAME
 from inhand_mapping.bag_mapping import build_map_from_bag
@@ -29,9 +29,7 @@ EXIT_BAD_INPUT = 2
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog='build_map', description=__doc__.split('\n\n')[0],
-                                     epilog=__doc__.split('\n\n', 2)[2],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser('build_map', __doc__, epilog_from=2)
     parser.add_argument('bag', type=Path, help='bag folder, or .mcap / .db3 file')
     parser.add_argument('--config', help='ROS parameter file with registration_node and '
                         'occupancy_node sections (e.g. config/mapping.yaml)')

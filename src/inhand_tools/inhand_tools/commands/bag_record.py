@@ -38,17 +38,14 @@ import sys
 import time
 from pathlib import Path
 
-from inhand_common.cli_types import positive_float
+from inhand_common.cli_types import command_parser, positive_float
 from inhand_tools.bag_recorder import RecordRequest, prepare_output, record_topics, recording_summary
 
 EXIT_REFUSED = 2
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parts = __doc__.split('\n\n')
-    parser = argparse.ArgumentParser(
-        prog='bag_record', description=parts[0].replace('\n', ' ').replace('``', ''),
-        epilog='\n\n'.join(parts[2:]), formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser('bag_record', __doc__, epilog_from=2)
     parser.add_argument('-o', '--output', type=Path, required=True,
                         help='bag folder to create')
     parser.add_argument('topics', nargs='*', metavar='TOPIC', help='topics to record')

@@ -64,7 +64,7 @@ import sys
 from pathlib import Path
 
 from inhand_common.bag_source import BagError, BagSource
-from inhand_common.cli_types import non_negative_float, positive_float
+from inhand_common.cli_types import command_parser, non_negative_float, positive_float
 from inhand_tools.bag_replayer import ReplayOptions, plan_streams, replay_bag, replay_summary, start_stamp
 
 EXIT_DAMAGED = 1
@@ -72,10 +72,7 @@ EXIT_REFUSED = 2
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parts = __doc__.split('\n\n')
-    parser = argparse.ArgumentParser(
-        prog='bag_replay', description=parts[0].replace('\n', ' ').replace('``', ''),
-        epilog='\n\n'.join(parts[2:]), formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser('bag_replay', __doc__, epilog_from=2)
     parser.add_argument('bag', type=Path, help='bag folder, or .mcap / .db3 file')
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument('--rate', type=positive_float, default=1.0, metavar='FACTOR',

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from inhand_common.cli_types import command_parser
 from inhand_common.ground_truth import FRAMES, GroundTruth, default_frame, in_frame, load_truth
 from inhand_tools.bag_points import BagPoints, bag_mode_for_frame, read_bag_points
 from inhand_tools.map_cells import MapCells, load_map
@@ -43,9 +44,7 @@ EXIT_BAD_INPUT = 2
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n\n')[0],
-                                     epilog=__doc__.split('\n\n', 1)[1],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser(PROG, __doc__)
     parser.add_argument('map', type=Path, help='map: NPZ, PLY, or a bag with an occupancy cloud')
     parser.add_argument('--truth', help='simulator truth file (default: the bag\'s sidecar '
                         'BAG.truth.npz)')

@@ -35,6 +35,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from inhand_common.cli_types import command_parser
 from inhand_common.ground_truth import FRAMES, default_frame, in_frame, load_truth
 from inhand_tools.bag_points import bag_mode_for_frame, map_frame_of_bag, read_bag_points
 from inhand_tools.drawing import UP_AXES
@@ -49,9 +50,7 @@ EXIT_BAD_INPUT = 2
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n\n')[0],
-                                     epilog=__doc__.split('\n\n', 1)[1],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser(PROG, __doc__)
     parser.add_argument('map', type=Path, help='map: NPZ, PLY, or a bag with an occupancy cloud')
     parser.add_argument('--output', type=Path, required=True, help='folder for the PNGs')
     parser.add_argument('--bag', type=Path, help='session bag: raw and registered points')

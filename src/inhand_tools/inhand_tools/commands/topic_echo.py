@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from inhand_common.cli_types import command_parser
 from inhand_tools.echo_format import FieldPathError, Options, check_field_path, parse_field_path
 from inhand_tools.message_types import UnknownMessageType, message_class
 from inhand_tools.topic_printer import EchoRequest, echo_topic
@@ -41,10 +42,7 @@ def positive_int(text: str) -> int:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parts = __doc__.split('\n\n')
-    parser = argparse.ArgumentParser(
-        prog='topic_echo', description=parts[0].replace('\n', ' ').replace('``', ''),
-        epilog='\n\n'.join(parts[2:]), formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser('topic_echo', __doc__, epilog_from=2)
     parser.add_argument('topic', help='topic name (relative names resolve in the namespace)')
     parser.add_argument('--type', metavar='pkg/msg/Type',
                         help='message type (default: from the graph)')

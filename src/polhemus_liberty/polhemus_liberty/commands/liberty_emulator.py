@@ -20,7 +20,7 @@ import sys
 import threading
 import time
 
-from inhand_common.cli_types import positive_float
+from inhand_common.cli_types import command_parser, positive_float
 from polhemus_liberty.emulator import LibertyEmulator
 from polhemus_liberty.motion import open_motion_source
 
@@ -70,9 +70,7 @@ def _station_list(text: str) -> list[int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog='liberty_emulator', description=__doc__.split('\n\n')[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split('\n\n', 1)[1])
+    parser = command_parser('liberty_emulator', __doc__)
     parser.add_argument('--port', default='/tmp/liberty0',
                         help='symlink to create for the pty (what the driver opens)')
     parser.add_argument('--motion', default='builtin',
