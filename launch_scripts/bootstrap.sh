@@ -60,6 +60,12 @@ if [[ ! -x "$VENV/bin/python" ]]; then
 fi
 PIP=("$VENV/bin/python" -m pip --disable-pip-version-check -q)
 say "installing pinned dependencies (ROS 2 Jazzy rclpy + common_interfaces, numpy, pyserial, opencv, rosbags)"
+# opencv-contrib-python-headless replaces opencv-python-headless (both install cv2): an older
+# .venv that has the plain one loses both (they share files), and the install below puts
+# contrib back whole.
+if "$VENV/bin/python" -m pip show -q opencv-python-headless >/dev/null 2>&1; then
+  "${PIP[@]}" uninstall -y opencv-python-headless opencv-contrib-python-headless
+fi
 "${PIP[@]}" install -r "$ROOT/launch_scripts/requirements.txt" -c "$ROOT/launch_scripts/constraints.txt" 2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
 say "installing workspace packages: $(for p in "${PACKAGES[@]}"; do printf '%s ' "$(basename "$p")"; done)"
 EDITABLE=()

@@ -48,8 +48,9 @@ ALLOWED_IMPORTS = {
     'inhand_common': set(),
     'polhemus_liberty': {'inhand_common'},
     'inhand_mapping': {'inhand_common'},
-    'inhand_sim': {'inhand_common', 'inhand_mapping'},
-    'inhand_tools': {'inhand_common', 'inhand_mapping'},
+    'inhand_stereo': {'inhand_common', 'inhand_mapping'},
+    'inhand_sim': {'inhand_common', 'inhand_mapping', 'inhand_stereo'},
+    'inhand_tools': {'inhand_common', 'inhand_mapping', 'inhand_stereo'},
 }
 
 

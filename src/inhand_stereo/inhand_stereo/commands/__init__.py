@@ -1,0 +1,1 @@
+"""Command-line tools: parse arguments, call the library, report."""
