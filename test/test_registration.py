@@ -460,3 +460,27 @@ def test_an_expected_finger_not_heard_yet_holds_the_object_history_at_start_up()
         reg.add_object_pose(k * 0.01, [0.0, 0.0, 0.0], identity)
     reg.add_fingertips(np.arange(50) * 0.01, np.zeros((50, 3)), 1)
     assert reg.drain()[1].size == 50
+
+
+def test_object_pose_at_follows_the_fingertip_rules():
+    """What the stereo node asks: the map frame's pose at a picture's stamp."""
+    from inhand_common.rotations import quaternion_to_matrix
+    reg = Registrar('tracked', max_gap=0.05)
+    assert reg.object_pose_at(10.0).state == 'later'          # no pose yet
+    q0, q1 = np.array([0.0, 0.0, 0.0, 1.0]), np.array([0.0, 0.0, math.sin(0.1), math.cos(0.1)])
+    reg.add_object_pose(10.00, [0.1, 0.0, 0.0], q0)
+    reg.add_object_pose(10.04, [0.2, 0.0, 0.0], q1)
+    reg.add_object_pose(10.20, [0.3, 0.0, 0.0], q1)           # 0.16 s after: a gap
+    exact = reg.object_pose_at(10.04)
+    assert exact.state == 'resolved'
+    assert np.allclose(exact.position, [0.2, 0, 0])
+    assert np.allclose(exact.rotation, quaternion_to_matrix(q1))
+    half = reg.object_pose_at(10.02)
+    assert half.state == 'resolved' and np.allclose(half.position, [0.15, 0, 0])
+    angle = math.atan2(half.rotation[1, 0], half.rotation[0, 0])
+    assert math.isclose(angle, 0.1, abs_tol=1e-9)             # slerp: half of 0.2 rad
+    assert reg.object_pose_at(10.10).state == 'gap'
+    assert reg.object_pose_at(9.99).state == 'before_first'
+    assert reg.object_pose_at(10.30).state == 'later'         # never extrapolated
+    static = Registrar('static').object_pose_at(5.0)
+    assert static.state == 'resolved' and np.allclose(static.rotation, np.eye(3))

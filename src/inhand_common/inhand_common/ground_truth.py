@@ -34,6 +34,20 @@ object_quaternions     (T, 4)      its true orientation: ``p_tracker = R p_objec
                                    constant in static sessions
 =====================  ==========  ============================================================
 
+Sessions with a stereo shot add these (:data:`STEREO_KEYS`; all or none):
+
+=====================  ==========  ============================================================
+surface_colours        (N, 3)      uint8 RGB: the true (unshaded) colour of each surface sample
+camera_pose            (7,)        the left camera (``stereo_left_optical``) in the tracker
+                                   frame: x, y, z, qx, qy, qz, qw (``p_tracker = R p_cam + t``)
+stereo_time            () float    the stamp of the image pair (s)
+stereo_depth           (H, W)      float32: true depth (z, m) of every pixel of the rectified
+                                   left image; inf where the ray meets nothing
+stereo_object_mask     (H, W)      bool: the pixel sees the object (not backdrop or table)
+stereo_focal           () float    focal length of the rectified pair (px)
+stereo_baseline        () float    baseline (m): true disparity = focal * baseline / depth
+=====================  ==========  ============================================================
+
 Which frame a map is in: a tracked map (``config/mapping.yaml``, registration ``tracked``)
 is in the ``object`` frame, which is the object sensor's frame; the truth puts the object
 frame on the object sensor (so the two frames are one). A static map
@@ -58,12 +72,15 @@ import numpy as np
 
 from inhand_common.rotations import quaternion_normalize, rotate_vectors, slerp
 
-__all__ = ['FRAMES', 'TRUTH_KEYS', 'GroundTruth', 'default_frame', 'in_frame', 'load_truth',
-           'pose_at', 'truth_path', 'write_truth']
+__all__ = ['FRAMES', 'STEREO_KEYS', 'TRUTH_KEYS', 'GroundTruth', 'StereoTruth',
+           'default_frame', 'in_frame', 'load_truth', 'pose_at', 'truth_path', 'write_truth']
 
 TRUTH_KEYS = ('object_name', 'static', 'rate', 'seed', 'settings_json', 'surface_points',
               'surface_normals', 'contacts', 'contact_times', 'stray_points', 'stray_times',
               'object_times', 'object_positions', 'object_quaternions')
+
+STEREO_KEYS = ('surface_colours', 'camera_pose', 'stereo_time', 'stereo_depth',
+               'stereo_object_mask', 'stereo_focal', 'stereo_baseline')
 
 FRAMES = ('object', 'tracker')
 
@@ -75,6 +92,24 @@ _SHAPES = {  # key: (number of dimensions, trailing size or None)
     'contact_times': (1, None), 'stray_points': (2, 3), 'stray_times': (1, None),
     'object_times': (1, None), 'object_positions': (2, 3), 'object_quaternions': (2, 4),
 }
+
+
+@dataclass(frozen=True, eq=False)
+class StereoTruth:
+    """What the stereo camera really saw: true depth of the rectified left image."""
+
+    camera_pose: np.ndarray     # (7,) x y z qx qy qz qw: stereo_left_optical in the tracker
+    time: float                 # the image pair's stamp (s)
+    depth: np.ndarray           # (H, W) float32 z (m); inf: nothing hit
+    object_mask: np.ndarray     # (H, W) bool: pixel on the object
+    focal: float                # px
+    baseline: float             # m
+
+    @property
+    def disparity(self) -> np.ndarray:
+        """True disparity (px) of every pixel of the left image; 0 where nothing was hit."""
+        with np.errstate(divide='ignore'):
+            return (self.focal * self.baseline / self.depth).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -97,6 +132,8 @@ class GroundTruth:
     object_quaternions: np.ndarray
     frame: str = 'object'
     path: Path | None = field(default=None, compare=False)
+    surface_colours: np.ndarray | None = field(default=None, compare=False)  # (N, 3) uint8
+    stereo: StereoTruth | None = field(default=None, compare=False)
 
     @property
     def object_motion(self) -> float:
@@ -149,6 +186,7 @@ def load_truth(path) -> GroundTruth:
         try:
             arrays = {key: np.asarray(data[key], dtype=np.float64) for key in _SHAPES}
             settings_bytes = bytes(np.asarray(data['settings_json'], dtype=np.uint8))
+            colours, stereo = _stereo_truth(data, path)
         except _UNREADABLE as error:
             raise ValueError(f'{path}: unreadable truth arrays ({type(error).__name__}: '
                              f'{error})') from None
@@ -173,7 +211,37 @@ def load_truth(path) -> GroundTruth:
         settings = json.loads(settings_bytes.decode('utf-8')) if settings_bytes else {}
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
         raise ValueError(f'{path}: settings_json is not JSON text ({error})') from None
-    return GroundTruth(settings=settings, path=path, frame='object', **scalars, **arrays)
+    if colours is not None and len(colours) != len(arrays['surface_points']):
+        raise ValueError(f'{path}: surface_colours has {len(colours)} rows but surface_points '
+                         f'has {len(arrays["surface_points"])}')
+    return GroundTruth(settings=settings, path=path, frame='object', surface_colours=colours,
+                       stereo=stereo, **scalars, **arrays)
+
+
+def _stereo_truth(data: Any, path: Path) -> tuple[np.ndarray | None, StereoTruth | None]:
+    """The optional stereo keys: all or none."""
+    present = [key for key in STEREO_KEYS if key in data.files]
+    if not present:
+        return None, None
+    missing = [key for key in STEREO_KEYS if key not in data.files]
+    if missing:
+        raise ValueError(f'{path}: stereo truth incomplete: has {", ".join(present)} but not '
+                         f'{", ".join(missing)}')
+    colours = np.asarray(data['surface_colours'])
+    depth = np.asarray(data['stereo_depth'], dtype=np.float32)
+    mask = np.asarray(data['stereo_object_mask'], dtype=bool)
+    pose = np.asarray(data['camera_pose'], dtype=np.float64)
+    if colours.ndim != 2 or colours.shape[1] != 3 or colours.dtype != np.uint8:
+        raise ValueError(f'{path}: surface_colours must be (n, 3) uint8, is {colours.shape} '
+                         f'{colours.dtype}')
+    if depth.ndim != 2 or mask.shape != depth.shape or pose.shape != (7,):
+        raise ValueError(f'{path}: stereo_depth {depth.shape}, stereo_object_mask '
+                         f'{mask.shape} and camera_pose {pose.shape} do not fit together')
+    stereo = StereoTruth(camera_pose=pose, time=_scalar(data, 'stereo_time', float, path),
+                         depth=depth, object_mask=mask,
+                         focal=_scalar(data, 'stereo_focal', float, path),
+                         baseline=_scalar(data, 'stereo_baseline', float, path))
+    return colours, stereo
 
 
 def default_frame(truth: GroundTruth) -> str:
@@ -235,7 +303,8 @@ def in_frame(truth: GroundTruth, frame: str) -> GroundTruth:
 
 
 def write_truth(path, arrays: Mapping[str, Any]) -> Path:
-    """Write a truth file holding exactly :data:`TRUTH_KEYS` from ``arrays``.
+    """Write a truth file holding :data:`TRUTH_KEYS` (and :data:`STEREO_KEYS`, if given)
+    from ``arrays``.
 
     ``settings`` (a dict) may stand instead of ``settings_json``; the four scalars may be
     plain Python values. The archive is stored uncompressed with fixed zip timestamps, so the
@@ -248,13 +317,17 @@ def write_truth(path, arrays: Mapping[str, Any]) -> Path:
     missing = [key for key in TRUTH_KEYS if key not in arrays]
     if missing:
         raise ValueError(f'write_truth: missing {", ".join(missing)}')
+    stereo = [key for key in STEREO_KEYS if key in arrays]
+    if stereo and len(stereo) != len(STEREO_KEYS):
+        raise ValueError('write_truth: the stereo keys go together; missing '
+                         f'{", ".join(k for k in STEREO_KEYS if k not in arrays)}')
     arrays['object_name'] = np.array(str(arrays['object_name']))
     arrays['static'] = np.array(bool(arrays['static']))
     arrays['rate'] = np.array(float(arrays['rate']))
     arrays['seed'] = np.array(int(arrays['seed']), dtype=np.int64)
     path = Path(path)
     with zipfile.ZipFile(path, 'w', compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
-        for key in TRUTH_KEYS:
+        for key in TRUTH_KEYS + tuple(stereo):
             buffer = io.BytesIO()
             np.lib.format.write_array(buffer, np.asanyarray(arrays[key]), allow_pickle=False)
             info = zipfile.ZipInfo(f'{key}.npy', date_time=(1980, 1, 1, 0, 0, 0))

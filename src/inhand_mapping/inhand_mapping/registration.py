@@ -75,6 +75,7 @@ from inhand_common.array_types import (
     Bools,
     Counts,
     Matrices,
+    Matrix3,
     Points,
     Quaternions,
     Rows,
@@ -84,7 +85,7 @@ from inhand_common.array_types import (
 )
 from inhand_common.rotations import quaternion_to_matrix, slerp
 
-__all__ = ['MODES', 'Registrar', 'RegistrationStats']
+__all__ = ['MODES', 'ObjectPoseAt', 'Registrar', 'RegistrationStats']
 
 MODES = ('tracked', 'static')
 
@@ -118,6 +119,21 @@ class RegistrationStats:
 
 def _empty_result() -> Registered:
     return np.empty((0, 3)), np.empty(0), np.empty(0, dtype=np.int32)
+
+
+class ObjectPoseAt(NamedTuple):
+    """The map frame's pose in the tracker frame at one time, by the fingertips' rules.
+
+    ``state``: ``resolved`` (a pose at that stamp, or interpolated between two poses at most
+    ``max_gap`` apart; ``rotation`` and ``position`` are set), ``later`` (no pose at or after
+    the time yet: ask again when more have come), ``gap`` (the poses around it are too far
+    apart), ``before_first`` (before the first object pose). A tracker-frame point p is
+    ``rotation.T @ (p - position)`` in the map frame.
+    """
+
+    state: str
+    rotation: Matrix3 | None = None
+    position: Vector3 | None = None
 
 
 class _Fingertips(NamedTuple):
@@ -260,6 +276,25 @@ class Registrar:
         if self._first_pose is None:
             self._first_pose = (p.copy(), q.copy())
             self._first_t = t
+
+    def object_pose_at(self, t: float) -> ObjectPoseAt:
+        """Where the object (map) frame was at time ``t`` (see :class:`ObjectPoseAt`): what the
+        stereo node needs to bring a picture taken at ``t`` into the map frame, by the same
+        rules (exact stamp, slerp across short gaps, never extrapolated) as the fingertips.
+        Static mode: the identity."""
+        if self.mode == 'static':
+            return ObjectPoseAt('resolved', np.eye(3), np.zeros(3))
+        if self._n_obj == 0:
+            return ObjectPoseAt('later')
+        stamps = np.array([float(t)])
+        match = self._match_object_poses(stamps)
+        if match.resolved[0]:
+            rotation, position = self._object_poses_at(stamps, match.at_or_after,
+                                                       match.interpolate)
+            return ObjectPoseAt('resolved', rotation[0], position[0])
+        if match.later[0]:
+            return ObjectPoseAt('later')
+        return ObjectPoseAt('before_first' if match.before_first[0] else 'gap')
 
     def add_fingertips(self, t: ArrayLike, positions: ArrayLike, fingers: ArrayLike,
                        now: float | None = None) -> None:
