@@ -14,6 +14,9 @@ SIM="$ROOT/.venv/bin/simulate_session"
 # elsewhere; the two differ in the last bit, and the bags would differ with the CPU. Keep numpy
 # on its AVX2 (libm) paths everywhere so the bags are the same on every x86_64 machine.
 export NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR"
+# Likewise OpenBLAS (numpy's matrix products) picks its kernels by CPU: the Haswell (AVX2)
+# ones everywhere.
+export OPENBLAS_CORETYPE=Haswell
 cd "$ROOT"
 DIR="${1:-bags}"
 mkdir -p "$DIR"

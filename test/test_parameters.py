@@ -218,6 +218,23 @@ def test_load_yaml_wildcard_then_node_overrides(tmp_path):
     assert load_yaml_parameters(str(path), 'someone_else') == {'units': 'inch', 'stations': 3}
 
 
+def test_load_yaml_node_in_any_namespace(tmp_path):
+    """``/**/node:`` (what calibrate_camera_tracker writes) applies to the node in any
+    namespace, as rcl reads it; the node's own section still overrides it."""
+    path = tmp_path / 'params.yaml'
+    path.write_text(
+        '/**/stereo_node:\n'
+        '  ros__parameters:\n'
+        '    point_step: 3\n'
+        '    resolution: 0.004\n'
+        'stereo_node:\n'
+        '  ros__parameters:\n'
+        '    point_step: 1\n', encoding='utf-8')
+    assert load_yaml_parameters(str(path), 'stereo_node') == {'point_step': 1,
+                                                               'resolution': 0.004}
+    assert load_yaml_parameters(str(path), 'occupancy_node') == {}
+
+
 def test_load_yaml_empty_and_bad_files(tmp_path):
     empty = tmp_path / 'empty.yaml'
     empty.write_text('', encoding='utf-8')

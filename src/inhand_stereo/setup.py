@@ -19,6 +19,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'stereo_node = inhand_stereo.nodes.stereo_node:main',
+            'calibrate_stereo = inhand_stereo.commands.calibrate_stereo:main',
+            'calibrate_camera_tracker = inhand_stereo.commands.calibrate_camera_tracker:main',
         ],
     },
 )

@@ -175,7 +175,8 @@ def load_yaml_parameters(path: str, node_name: str) -> dict[str, Any]:
     if not isinstance(document, dict):
         raise ParameterError([f'{path}: not a ROS parameter file (top level is not a mapping)'])
     merged: dict[str, Any] = {}
-    for key in ('/**', '**', node_name, '/' + node_name):
+    # As rcl matches them: every node, then this node in any namespace, then by its name.
+    for key in ('/**', '**', '/**/' + node_name, node_name, '/' + node_name):
         section = document.get(key)
         if isinstance(section, dict):
             merged.update(section.get('ros__parameters', {}) or {})

@@ -8,14 +8,16 @@ strips it.
 
 from __future__ import annotations
 
-__all__ = ['DEFAULT_OBJECT_STATION', 'MAP_FRAME', 'OBJECT_POSE_TOPIC', 'TRACKER_FRAME',
-           'station_pose_topic']
+__all__ = ['DEFAULT_OBJECT_STATION', 'MAP_FRAME', 'OBJECT_POSE_TOPIC', 'STEREO_FRAME',
+           'TRACKER_FRAME', 'station_pose_topic']
 
 # The tracker's transmitter frame (x forward, y right, z down, as the device defines it).
 TRACKER_FRAME = 'polhemus_source'
 # The map frame: the object sensor's body frame in tracked mode, the tracker frame's twin in
 # static mode (see the README's frames).
 MAP_FRAME = 'object'
+# The left camera of the stereo pair, optical axes (z forward, x right, y down).
+STEREO_FRAME = 'stereo_left_optical'
 
 # The station name of the object sensor unless configured otherwise (the driver's
 # station_names and the registration node's object_name).
