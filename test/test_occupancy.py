@@ -17,6 +17,8 @@ import json
 import math
 import os
 import pickle
+import subprocess
+import types
 
 import numpy as np
 import pytest
@@ -25,10 +27,13 @@ from plyfile import PlyData
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 
-from inhand_common.point_cloud import from_point_cloud2, pack_rgb, to_point_cloud2
+from inhand_common.packed_rgb import pack_rgb
+from inhand_common.point_cloud import from_point_cloud2, to_point_cloud2
 from inhand_mapping import map_io
+from inhand_mapping.cloud_layouts import MAP_CELL_DTYPE, TEXTURED_CELL_DTYPE, textured_cells
 from inhand_mapping.dwell import DwellWeights, WeightedSamples
 from inhand_mapping.entropy import cell_entropy, entropy_weights, eq10_entropy, map_entropy
+from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.object_frame import object_frame
 from inhand_mapping.occupancy import (
     GridSpec,
@@ -1111,3 +1116,227 @@ def test_pack_rgb_gives_float32_holding_0x00rrggbb():
     back = from_point_cloud2(deserialize_message(raw, PointCloud2))
     assert list(back['rgb'].view(np.uint32)) == [0x000000, 0xFF00FF, 0x123456, 0xFFFFFF]
     assert [f.datatype for f in to_point_cloud2(points, 'object', Time()).fields] == [7] * 4
+
+
+# ============================================================================ colour (texture)
+
+OLD_PLY_HEADER = [
+    'ply', 'format binary_little_endian 1.0', 'comment frame_id object',
+    'comment intensity = occupancy probability; first_touch in seconds (nan = none)',
+    'element vertex {count}', 'property float x', 'property float y', 'property float z',
+    'property float intensity', 'property uint hits', 'property double first_touch',
+    'end_header']
+
+
+def painted(count, seed=4):
+    """Colours (count, 3) uint8 and a textured mask with both values; colours are given
+    (non-zero) even where not textured, which the writers must store as 0."""
+    rng = np.random.default_rng(seed)
+    colours = rng.integers(1, 256, (count, 3), dtype=np.uint8)
+    textured = rng.random(count) < 0.6
+    textured[:2] = [True, False]
+    return colours, textured
+
+
+def split_ply(path):
+    data = path.read_bytes()
+    end = data.index(b'end_header\n') + len(b'end_header\n')
+    return data[:end].decode('ascii').splitlines(), data[end:]
+
+
+def test_ply_with_colours_has_uchar_red_green_blue_and_textured(tmp_path):
+    grid = example_grid()
+    centres, p, hits, first = grid.cells()
+    colours, textured = painted(len(p))
+    path = map_io.save_ply(tmp_path / 'map.ply', centres, p, hits, first, frame_id='object',
+                           colours=colours, textured=textured)
+    ply = PlyData.read(str(path))
+    element = ply['vertex']
+    assert [prop.name for prop in element.properties] == \
+        ['x', 'y', 'z', 'intensity', 'hits', 'first_touch', 'red', 'green', 'blue', 'textured']
+    for name in ('red', 'green', 'blue', 'textured'):
+        assert element[name].dtype == np.uint8, name
+    expected = np.where(textured[:, None], colours, 0)
+    assert np.array_equal(np.stack([element['red'], element['green'], element['blue']], 1),
+                          expected)
+    assert np.array_equal(element['textured'], textured.astype(np.uint8))
+    # the other fields are untouched
+    assert np.array_equal(element['x'], centres[:, 0].astype(np.float32))
+    assert np.array_equal(element['first_touch'], first, equal_nan=True)
+    assert np.array_equal(element['hits'], hits)
+    # and our own reader sees the same
+    vertices = map_io.read_ply(path)
+    assert np.array_equal(vertices['textured'], element['textured'])
+    assert np.array_equal(vertices['red'], element['red'])
+    header, _ = split_ply(path)
+    assert header[:4] == OLD_PLY_HEADER[:4] and any(line.startswith('comment red green blue')
+                                                     for line in header)
+
+
+def test_a_ply_without_colours_is_byte_for_byte_what_it_always_was(tmp_path):
+    grid = example_grid()
+    centres, p, hits, first = grid.cells()
+    path = map_io.save_ply(tmp_path / 'map.ply', centres, p, hits, first)
+    header, body = split_ply(path)
+    assert header == [line.format(count=len(p)) for line in OLD_PLY_HEADER]
+    old = np.empty(len(p), dtype=[('x', '<f4'), ('y', '<f4'), ('z', '<f4'),
+                                  ('intensity', '<f4'), ('hits', '<u4'),
+                                  ('first_touch', '<f8')])
+    old['x'], old['y'], old['z'] = centres.T
+    old['intensity'], old['hits'], old['first_touch'] = p, hits, first
+    assert body == old.tobytes()
+
+
+def head_map_io():
+    """map_io as committed at HEAD (the writer before colours), or None without git."""
+    try:
+        source = subprocess.run(
+            ['git', 'show', 'HEAD:src/inhand_mapping/inhand_mapping/map_io.py'],
+            cwd=os.path.dirname(__file__), capture_output=True, text=True, timeout=30,
+            check=True).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    module = types.ModuleType('map_io_at_head')
+    exec(compile(source, 'HEAD:map_io.py', 'exec'), module.__dict__)
+    return module
+
+
+def test_maps_without_colour_match_the_writer_at_head_and_its_files_still_load(tmp_path):
+    old = head_map_io()
+    if old is None:
+        pytest.skip('git or the repository history is not available')
+    grid = example_grid()
+    centres, p, hits, first = grid.cells(threshold=0.6)
+    old.save_ply(tmp_path / 'old.ply', centres, p, hits, first)
+    map_io.save_ply(tmp_path / 'new.ply', centres, p, hits, first)
+    assert (tmp_path / 'old.ply').read_bytes() == (tmp_path / 'new.ply').read_bytes()
+    # NPZ (zip entries carry a time stamp, so the same arrays and metadata, not bytes)
+    old.save_npz(grid, tmp_path / 'old.npz', extra={'a': 1})
+    map_io.save_npz(grid, tmp_path / 'new.npz', extra={'a': 1})
+    with np.load(tmp_path / 'old.npz') as a, np.load(tmp_path / 'new.npz') as b:
+        assert a.files == b.files
+        for name in a.files:
+            assert a[name].dtype == b[name].dtype
+            assert np.array_equal(a[name], b[name], equal_nan=True), name
+    # a file of the old writer loads, without colours
+    loaded, metadata = map_io.load_npz(tmp_path / 'old.npz')
+    assert same_grid(loaded, grid) and metadata['extra'] == {'a': 1}
+    assert map_io.load_colours(tmp_path / 'old.npz') is None
+    # and a coloured map still loads in the old reader (it ignores the colour arrays)
+    colours, textured = painted(len(p))
+    map_io.save_npz(grid, tmp_path / 'coloured.npz',
+                    colours=map_io.GridColours.from_cells(grid.spec, centres, colours, textured))
+    again, _ = old.load_npz(tmp_path / 'coloured.npz')
+    assert same_grid(again, grid)
+
+
+def test_npz_round_trip_of_the_colours(tmp_path):
+    grid = example_grid()
+    centres, p, _, _ = grid.cells(threshold=0.6)
+    colours, textured = painted(len(p))
+    cell_colours = map_io.GridColours.from_cells(grid.spec, centres, colours, textured)
+    assert cell_colours.rgb.shape == (*grid.spec.shape, 3) and cell_colours.rgb.dtype == np.uint8
+    assert cell_colours.textured.sum() == textured.sum()
+    path = map_io.save_npz(grid, tmp_path / 'map.npz', colours=cell_colours)
+    with np.load(path) as data:
+        assert sorted(data.files) == ['first_touch', 'hits', 'log_odds', 'metadata', 'rgb',
+                                      'textured']
+    loaded = map_io.load_colours(path)
+    assert loaded is not None
+    assert np.array_equal(loaded.rgb, cell_colours.rgb)
+    assert np.array_equal(loaded.textured, cell_colours.textured)
+    back, mask = loaded.at(grid.spec, centres)
+    assert np.array_equal(mask, textured)
+    assert np.array_equal(back, np.where(textured[:, None], colours, 0))
+    # the grid itself is unchanged by the colours, and the format version is the same
+    grid_back, metadata = map_io.load_npz(path)
+    assert same_grid(grid_back, grid) and metadata['format_version'] == 2
+    # cells never textured (outside the given ones) read as untextured
+    _, others = loaded.at(grid.spec, grid.cells()[0])
+    assert others.sum() == textured.sum()
+
+
+def test_colours_of_the_wrong_size_or_alone_are_refused(tmp_path):
+    grid = example_grid()
+    centres, p, hits, first = grid.cells(threshold=0.6)
+    colours, textured = painted(len(p))
+    with pytest.raises(ValueError, match='together'):
+        map_io.save_ply(tmp_path / 'a.ply', centres, p, hits, first, colours=colours)
+    with pytest.raises(ValueError, match='colours must be'):
+        map_io.save_ply(tmp_path / 'a.ply', centres, p, hits, first, colours=colours[1:],
+                        textured=textured[1:])
+    with pytest.raises(ValueError):
+        map_io.GridColours.from_cells(grid.spec, centres + 1.0, colours, textured)
+    with pytest.raises(ValueError, match='together'):
+        save_map(grid, tmp_path, 'map', 0.6, textured=textured)
+    with pytest.raises(ValueError, match='colours must be'):
+        save_map(grid, tmp_path, 'map', 0.6, colours=colours[1:], textured=textured[1:])
+    small = OccupancyGrid(GridSpec(size=0.04, resolution=0.004))
+    with pytest.raises(ValueError, match='grid'):
+        map_io.save_npz(small, tmp_path / 'b.npz',
+                        colours=map_io.GridColours.from_cells(grid.spec, centres, colours,
+                                                              textured))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_map_passes_the_colours_to_every_file(tmp_path):
+    grid = example_grid()
+    threshold = 0.6
+    centres, p, hits, first = grid.cells(threshold=threshold)
+    colours, textured = painted(len(p))
+    plain = save_map(grid, tmp_path / 'plain', 'map', threshold)
+    coloured = save_map(grid, tmp_path / 'coloured', 'map', threshold, colours=colours,
+                        textured=textured)
+    assert [path.name for path in coloured] == [path.name for path in plain] == \
+        ['map.npz', 'map.ply', 'map_object_centric.ply']
+    expected = np.where(textured[:, None], colours, 0)
+    for path in coloured[1:]:
+        element = PlyData.read(str(path))['vertex']
+        assert np.array_equal(np.stack([element['red'], element['green'], element['blue']], 1),
+                              expected)
+        assert np.array_equal(element['textured'], textured)
+    # the same cells in the same order as the PLY without colours
+    for old, new in zip(plain[1:], coloured[1:]):
+        a, b = map_io.read_ply(old), map_io.read_ply(new)
+        for name in a.dtype.names:
+            assert np.array_equal(a[name], b[name], equal_nan=True), name
+    # without colours the PLYs are the bare save_ply output (no colour fields)
+    map_io.save_ply(tmp_path / 'bare.ply', centres, p, hits, first)
+    assert plain[1].read_bytes() == (tmp_path / 'bare.ply').read_bytes()
+    loaded = map_io.load_colours(coloured[0])
+    assert loaded is not None and np.array_equal(loaded.at(grid.spec, centres)[0], expected)
+    assert map_io.load_colours(plain[0]) is None
+
+
+def test_textured_cloud_layout_packs_rgb_as_pcl_does():
+    grid = example_grid()
+    _, occupied = MapProducts(grid, 0.6).cells()
+    colours, textured = painted(len(occupied))
+    points = textured_cells(occupied, colours, textured)
+    assert points.dtype == TEXTURED_CELL_DTYPE and points.dtype.itemsize == 24
+    assert [(name, points.dtype.fields[name][1]) for name in points.dtype.names] == \
+        [('x', 0), ('y', 4), ('z', 8), ('intensity', 12), ('rgb', 16), ('textured', 20)]
+    for name in ('x', 'y', 'z', 'intensity'):
+        assert np.array_equal(points[name], occupied[name]), name
+    expected = pack_rgb(colours[:, 0], colours[:, 1], colours[:, 2]).view(np.uint32)
+    bits = points['rgb'].view(np.uint32)
+    assert np.array_equal(bits[textured], expected[textured])
+    assert not bits[~textured].any()
+    assert np.array_equal(points['textured'], textured.astype(np.uint8))
+    # in a PointCloud2: FLOAT32 rgb and UINT8 textured, the bits survive CDR
+    msg = to_point_cloud2(points, 'object', Time())
+    assert [(f.name, f.offset, f.datatype) for f in msg.fields] == \
+        [('x', 0, 7), ('y', 4, 7), ('z', 8, 7), ('intensity', 12, 7), ('rgb', 16, 7),
+         ('textured', 20, 2)]
+    assert msg.point_step == 24
+    back = from_point_cloud2(deserialize_message(serialize_message(msg), PointCloud2))
+    assert back.tobytes() == points.tobytes()
+    # the occupied cells as the saved PLY lists them: the same order
+    centres, _, _, _ = grid.cells(threshold=0.6)
+    assert np.array_equal(np.stack([points['x'], points['y'], points['z']], 1),
+                          centres.astype(np.float32))
+    # no cells, and sizes that do not match
+    empty = textured_cells(np.zeros(0, MAP_CELL_DTYPE), np.zeros((0, 3), np.uint8), [])
+    assert empty.shape == (0,) and empty.dtype == TEXTURED_CELL_DTYPE
+    with pytest.raises(ValueError):
+        textured_cells(occupied, colours[1:], textured)

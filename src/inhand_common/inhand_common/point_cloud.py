@@ -17,7 +17,7 @@ import sys
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
-__all__ = ['from_point_cloud2', 'pack_rgb', 'serialize_point_cloud2', 'to_point_cloud2']
+__all__ = ['from_point_cloud2', 'serialize_point_cloud2', 'to_point_cloud2']
 
 _TO_POINTFIELD = {
     np.dtype('int8'): PointField.INT8, np.dtype('uint8'): PointField.UINT8,
@@ -125,10 +125,3 @@ def from_point_cloud2(msg: PointCloud2) -> np.ndarray:
     count = msg.width * msg.height
     buffer = memoryview(msg.data) if not isinstance(msg.data, (bytes, bytearray)) else msg.data
     return np.frombuffer(buffer, dtype=dtype, count=count)
-
-
-def pack_rgb(red, green, blue) -> np.ndarray:
-    """float32 holding packed 0x00RRGGBB: the PCL/RViz ``rgb`` field convention."""
-    packed = (np.asarray(red, dtype=np.uint32) << 16) | \
-        (np.asarray(green, dtype=np.uint32) << 8) | np.asarray(blue, dtype=np.uint32)
-    return packed.astype(np.uint32).view(np.float32)

@@ -8,6 +8,9 @@
   centre), ``intensity`` (occupancy probability: RViz and Foxglove colour by it), ``hits``
   (uint32: measurements whose containing cell it is) and ``first_touch`` (float32 seconds
   since the map's first measurement, NaN if never hit directly).
+* ``occupancy/textured``: one point per occupied cell, ``x y z intensity`` as above, ``rgb``
+  (float32 holding packed 0x00RRGGBB, the PCL/RViz convention, 0 where not textured) and
+  ``textured`` (uint8: 1 where the camera saw the cell's surface), padded to 24 bytes.
 """
 
 from __future__ import annotations
@@ -16,15 +19,18 @@ import math
 
 import numpy as np
 
+from inhand_common.packed_rgb import rgb_of_colours
 from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.occupancy import OccupancyGrid
 
 __all__ = [
     'MAP_CELL_DTYPE',
     'REGISTERED_DTYPE',
+    'TEXTURED_CELL_DTYPE',
     'MapClouds',
     'map_cells',
     'pack_registered',
+    'textured_cells',
     'unpack_registered',
 ]
 
@@ -34,6 +40,10 @@ REGISTERED_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'finger', 't'],
 
 MAP_CELL_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity', '<f4'),
                            ('hits', '<u4'), ('first_touch', '<f4')])
+
+TEXTURED_CELL_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'intensity', 'rgb', 'textured'],
+                                'formats': ['<f4', '<f4', '<f4', '<f4', '<f4', 'u1'],
+                                'offsets': [0, 4, 8, 12, 16, 20], 'itemsize': 24})
 
 
 def pack_registered(points, times, fingers) -> np.ndarray:
@@ -84,3 +94,21 @@ def map_cells(grid: OccupancyGrid, threshold: float | None = None) -> np.ndarray
     """
     touched, occupied = MapClouds(grid)(-1.0 if threshold is None else threshold)
     return (touched if threshold is None else occupied).copy()
+
+
+def textured_cells(cells: np.ndarray, colours, textured) -> np.ndarray:
+    """The ``occupancy/textured`` points (TEXTURED_CELL_DTYPE, a new array) of the occupied
+    ``cells`` (any structured array with ``x y z intensity``: MAP_CELL_DTYPE rows) with their
+    ``colours`` (N, 3) RGB uint8 and ``textured`` (N,) mask; ``rgb`` is 0 where not
+    textured, whatever ``colours`` holds there."""
+    colours = np.asarray(colours)
+    seen = np.asarray(textured).astype(bool)
+    if colours.shape != (len(cells), 3) or seen.shape != (len(cells),):
+        raise ValueError(f'colours must be ({len(cells)}, 3) and textured ({len(cells)},), '
+                         f'got {colours.shape} and {seen.shape}')
+    points = np.zeros(len(cells), dtype=TEXTURED_CELL_DTYPE)    # zeros: defined padding bytes
+    for name in ('x', 'y', 'z', 'intensity'):
+        points[name] = cells[name]
+    points['rgb'] = rgb_of_colours(np.where(seen[:, None], colours, 0))
+    points['textured'] = seen
+    return points

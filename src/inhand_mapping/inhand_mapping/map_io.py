@@ -9,6 +9,19 @@
   ``intensity`` (occupancy probability) and the ``hits`` and ``first_touch`` scalar fields:
   CloudCompare, MeshLab, Open3D and PCL open it.
 
+Colour (the texture the stereo camera gives the occupied cells) is optional in both, and a
+map without it is written exactly as before:
+
+* NPZ: two more arrays of the grid's shape, ``rgb`` (n, n, n, 3) uint8 and ``textured``
+  (n, n, n) bool (``GridColours``; 0 where not textured). Grid-sized rather than per
+  occupied cell, so they need no cell list of their own and stay right whatever threshold
+  a reader picks; compressed they cost next to nothing (mostly zeros). The format version
+  stays 2: the arrays are an optional addition, a reader that predates them loads the map
+  and ignores them, and ``load_colours`` gives None for a file without them.
+* PLY: ``red green blue`` (uchar, the names MeshLab, CloudCompare and Open3D read as
+  colour) and ``textured`` (uchar, 1 where the camera saw the cell; colour 0 elsewhere)
+  after the other properties.
+
 Both are written atomically (temporary file, then rename).
 """
 
@@ -17,18 +30,19 @@ from __future__ import annotations
 import json
 import os
 import zipfile
-from dataclasses import asdict, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, TypeAlias
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
-from inhand_common.array_types import Records
+from inhand_common.array_types import Bools, Records
 from inhand_common.atomic_file import atomic_write
 from inhand_mapping.occupancy import GridSpec, IntegrationCounts, OccupancyGrid, SensorModel
 
-__all__ = ['FORMAT_VERSION', 'load_npz', 'read_ply', 'save_npz', 'save_ply']
+__all__ = ['FORMAT_VERSION', 'GridColours', 'load_colours', 'load_npz', 'read_ply', 'save_npz',
+           'save_ply']
 
 FilePath: TypeAlias = str | os.PathLike[str]
 
@@ -36,11 +50,80 @@ FORMAT_VERSION = 2
 SENSOR_MODEL_FIELDS = tuple(f.name for f in fields(SensorModel))
 # Version 1 maps were built with every sample a full measurement and eq. 3 at cell centres.
 VERSION_1_MODEL = {'distance_to': 'centre', 'evidence_rate': 0.0, 'visit_gap': 0.0}
+Colours: TypeAlias = NDArray[np.uint8]     # (M, 3) RGB per cell
+
+
+@dataclass(frozen=True, eq=False)
+class GridColours:
+    """Camera colour of every cell of a grid: ``rgb`` (n, n, n, 3) uint8 and ``textured``
+    (n, n, n) bool, colour 0 where not textured."""
+
+    rgb: NDArray[np.uint8]
+    textured: Bools
+
+    def __post_init__(self) -> None:
+        shape = self.textured.shape
+        if self.rgb.dtype != np.uint8 or self.textured.dtype != np.bool_ or \
+                len(shape) != 3 or self.rgb.shape != (*shape, 3):
+            raise ValueError(f'grid colours: rgb must be uint8 (n, n, n, 3) and textured bool '
+                             f'(n, n, n), got {self.rgb.dtype} {self.rgb.shape} and '
+                             f'{self.textured.dtype} {shape}')
+
+    @classmethod
+    def from_cells(cls, spec: GridSpec, centres: ArrayLike, colours: ArrayLike,
+                   textured: ArrayLike) -> GridColours:
+        """From per-cell colours (M, 3) and textured (M,) of the cells at ``centres``
+        (M, 3, inside the grid); every other cell untextured. Colours where ``textured``
+        is false are stored as 0."""
+        ijk = _cell_indices(spec, centres)
+        rgb_cells, mask = _cell_colours(colours, textured, len(ijk))
+        rgb = np.zeros((*spec.shape, 3), dtype=np.uint8)
+        seen = np.zeros(spec.shape, dtype=bool)
+        rgb[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = rgb_cells
+        seen[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = mask
+        return cls(rgb, seen)
+
+    def at(self, spec: GridSpec, centres: ArrayLike) -> tuple[Colours, Bools]:
+        """(colours (M, 3) uint8, textured (M,)) of the cells at ``centres`` (M, 3)."""
+        if self.textured.shape != spec.shape:
+            raise ValueError(f'grid colours of shape {self.textured.shape} for a grid of '
+                             f'{spec.shape}')
+        ijk = _cell_indices(spec, centres)
+        return (self.rgb[ijk[:, 0], ijk[:, 1], ijk[:, 2]],
+                self.textured[ijk[:, 0], ijk[:, 1], ijk[:, 2]])
+
+
+def _cell_indices(spec: GridSpec, centres: ArrayLike) -> NDArray[np.intp]:
+    points = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    ijk = np.floor((points - spec.origin) / spec.resolution).astype(np.intp)
+    if np.any((ijk < 0) | (ijk >= spec.cells_per_axis)):
+        raise ValueError('cell centres outside the grid')
+    return ijk
+
+
+def _cell_colours(colours: ArrayLike, textured: ArrayLike, count: int
+                  ) -> tuple[Colours, Bools]:
+    """Per-cell colours (count, 3) uint8, 0 where not textured, and the mask (count,);
+    ValueError when the sizes or the value range are wrong."""
+    rgb = np.asarray(colours)
+    mask = np.asarray(textured)
+    if rgb.shape != (count, 3) or mask.shape != (count,):
+        raise ValueError(f'colours must be ({count}, 3) and textured ({count},) for {count} '
+                         f'cells, got {rgb.shape} and {mask.shape}')
+    if rgb.size and (not np.issubdtype(rgb.dtype, np.integer) or rgb.min() < 0 or rgb.max() > 255):
+        raise ValueError('colours must be integers in [0, 255]')
+    seen = mask.astype(bool)
+    return np.where(seen[:, None], rgb, 0).astype(np.uint8), seen
 
 
 def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
-             extra: dict[str, Any] | None = None) -> Path:
+             extra: dict[str, Any] | None = None, colours: GridColours | None = None) -> Path:
+    """The grid, its model and metadata (module doc); ``colours`` adds the ``rgb`` and
+    ``textured`` arrays."""
     spec, model = grid.spec, grid.model
+    if colours is not None and colours.textured.shape != spec.shape:
+        raise ValueError(f'grid colours of shape {colours.textured.shape} for a grid of '
+                         f'{spec.shape}')
     metadata = {
         'format_version': FORMAT_VERSION, 'frame_id': frame_id,
         'size': spec.size, 'resolution': spec.resolution, 'centre': list(spec.centre),
@@ -48,11 +131,16 @@ def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
         **asdict(model),
         'counts': vars(grid.counts), 'extra': extra or {},
     }
+    encoded = np.frombuffer(json.dumps(metadata).encode(), dtype=np.uint8)
     target = Path(path)
     with atomic_write(target) as stream:
-        np.savez_compressed(stream, log_odds=grid.log_odds, hits=grid.hits,
-                            first_touch=grid.first_touch,
-                            metadata=np.frombuffer(json.dumps(metadata).encode(), dtype=np.uint8))
+        if colours is None:
+            np.savez_compressed(stream, log_odds=grid.log_odds, hits=grid.hits,
+                                first_touch=grid.first_touch, metadata=encoded)
+        else:
+            np.savez_compressed(stream, log_odds=grid.log_odds, hits=grid.hits,
+                                first_touch=grid.first_touch, metadata=encoded,
+                                rgb=colours.rgb, textured=colours.textured)
     return target
 
 
@@ -88,27 +176,60 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
     return grid, metadata
 
 
+def load_colours(path: FilePath) -> GridColours | None:
+    """The cell colours saved with the map at ``path``, None when it has none; ValueError
+    if it is not a map or its colours do not fit its grid."""
+    grid, _ = load_npz(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if 'rgb' not in data.files:
+                return None
+            rgb, textured = data['rgb'], data['textured']
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as error:
+        raise ValueError(f'{path}: its colours cannot be read '
+                         f'({type(error).__name__}: {error})') from None
+    try:
+        colours = GridColours(rgb, textured)
+    except ValueError as error:
+        raise ValueError(f'{path}: {error}') from None
+    if textured.shape != grid.spec.shape:
+        raise ValueError(f'{path}: colours of shape {textured.shape} for a grid of '
+                         f'{grid.spec.shape}')
+    return colours
+
+
 _PLY_FIELDS = [('x', '<f4', 'float'), ('y', '<f4', 'float'), ('z', '<f4', 'float'),
                ('intensity', '<f4', 'float'), ('hits', '<u4', 'uint'),
                ('first_touch', '<f8', 'double')]
+_PLY_COLOUR_FIELDS = [('red', 'u1', 'uchar'), ('green', 'u1', 'uchar'), ('blue', 'u1', 'uchar'),
+                      ('textured', 'u1', 'uchar')]
 
 
 def save_ply(path: FilePath, centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
-             first_touch: ArrayLike, frame_id: str = 'object') -> Path:
+             first_touch: ArrayLike, frame_id: str = 'object', colours: ArrayLike | None = None,
+             textured: ArrayLike | None = None) -> Path:
     """Occupied cells as a binary PLY point cloud (see the module doc for the fields): centres
-    (M, 3) and the three (M,) fields."""
+    (M, 3) and the three (M,) fields; with ``colours`` (M, 3) RGB and ``textured`` (M,)
+    (both or neither) also ``red green blue textured``."""
     count = len(np.asarray(probabilities))
-    vertices = np.empty(count, dtype=[(name, dtype) for name, dtype, _ in _PLY_FIELDS])
+    if (colours is None) != (textured is None):
+        raise ValueError('save_ply: colours and textured go together')
+    properties = _PLY_FIELDS + (_PLY_COLOUR_FIELDS if colours is not None else [])
+    vertices = np.empty(count, dtype=[(name, dtype) for name, dtype, _ in properties])
     xyz = np.asarray(centres).reshape(-1, 3)
     vertices['x'], vertices['y'], vertices['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     vertices['intensity'] = probabilities
     vertices['hits'] = hits
     vertices['first_touch'] = first_touch
-    header = ['ply', 'format binary_little_endian 1.0',
-              f'comment frame_id {frame_id}',
-              'comment intensity = occupancy probability; first_touch in seconds (nan = none)',
-              f'element vertex {count}']
-    header += [f'property {ply_type} {name}' for name, _, ply_type in _PLY_FIELDS]
+    comments = ['comment intensity = occupancy probability; first_touch in seconds (nan = none)']
+    if colours is not None and textured is not None:
+        rgb, seen = _cell_colours(colours, textured, count)
+        vertices['red'], vertices['green'], vertices['blue'] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+        vertices['textured'] = seen
+        comments.append('comment red green blue = camera colour where textured = 1, else 0')
+    header = ['ply', 'format binary_little_endian 1.0', f'comment frame_id {frame_id}',
+              *comments, f'element vertex {count}']
+    header += [f'property {ply_type} {name}' for name, _, ply_type in properties]
     header.append('end_header')
     target = Path(path)
     with atomic_write(target) as stream:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from inhand_mapping.cloud_layouts import MapClouds
-from inhand_mapping.map_io import save_npz, save_ply
+from inhand_mapping.map_io import GridColours, save_npz, save_ply
 from inhand_mapping.object_frame import ObjectFrame, object_frame
 from inhand_mapping.occupancy import OccupancyGrid
 
@@ -37,12 +37,17 @@ class MapProducts:
 
 
 def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
-             frame_id: str = 'object', extra: dict | None = None) -> tuple[Path, ...]:
+             frame_id: str = 'object', extra: dict | None = None, colours=None,
+             textured=None) -> tuple[Path, ...]:
     """``<folder>/<name>.npz`` (the whole grid), ``<name>.ply`` (occupied cells) and, when
     there are occupied cells, ``<name>_object_centric.ply`` (the same cells in
     ``object_centric``: origin at the centre of mass), each written atomically.
 
-    The NPZ metadata also records the threshold and the object-centric frame.
+    The NPZ metadata also records the threshold and the object-centric frame. ``colours``
+    (M, 3) RGB and ``textured`` (M,), both or neither, colour the occupied cells, in the
+    order of ``grid.cells(threshold=threshold)`` (the order of ``MapProducts.cells()``'s
+    occupied cells too): the NPZ gets them as grid arrays, both PLYs as ``red green blue
+    textured`` (map_io's module doc). Without them the files are what they always were.
     """
     frame = MapProducts(grid, threshold).object_frame()
     info = dict(extra or {}, occupied_threshold=threshold)
@@ -51,13 +56,19 @@ def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
                                   'principal_axes': frame.principal_axes.tolist(),
                                   'principal_extents': frame.principal_extents.tolist(),
                                   'occupied_cells': frame.cells}
+    if (colours is None) != (textured is None):
+        raise ValueError('save_map: colours and textured go together')
     folder = Path(folder)
-    npz = save_npz(grid, folder / f'{name}.npz', frame_id=frame_id, extra=info)
     centres, probabilities, hits, first_touch = grid.cells(threshold=threshold)
+    cell_colours = None if colours is None else \
+        GridColours.from_cells(grid.spec, centres, colours, textured)
+    npz = save_npz(grid, folder / f'{name}.npz', frame_id=frame_id, extra=info,
+                   colours=cell_colours)
     ply = save_ply(folder / f'{name}.ply', centres, probabilities, hits, first_touch,
-                   frame_id=frame_id)
+                   frame_id=frame_id, colours=colours, textured=textured)
     if frame is None:
         return npz, ply
     centric = save_ply(folder / f'{name}_object_centric.ply', frame.to_object_centric(centres),
-                       probabilities, hits, first_touch, frame_id='object_centric')
+                       probabilities, hits, first_touch, frame_id='object_centric',
+                       colours=colours, textured=textured)
     return npz, ply, centric

@@ -31,12 +31,13 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from inhand_common.node_runner import run_node
+from inhand_common.packed_rgb import rgb_of_colours
 from inhand_common.parameters import ParameterError, ParamSpec
-from inhand_common.point_cloud import from_point_cloud2, pack_rgb, serialize_point_cloud2
+from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
 from inhand_common.ros_names import MAP_FRAME, STEREO_FRAME, station_pose_topic
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
-from inhand_mapping.cloud_layouts import textured_cells_cloud
+from inhand_mapping.cloud_layouts import textured_cells
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 from inhand_mapping.qos import LATCHED_QOS
@@ -186,7 +187,7 @@ class StereoNode(Node):
         cloud = np.empty(len(points), dtype=POINT_FIELDS)
         for axis, name in enumerate('xyz'):
             cloud[name] = points[:, axis]
-        cloud['rgb'] = pack_rgb(shot.colours[:, 0], shot.colours[:, 1], shot.colours[:, 2])
+        cloud['rgb'] = rgb_of_colours(shot.colours)
         stamp = stamp_from_seconds(shot.stamp_ns * 1e-9)
         self._points.publish(serialize_point_cloud2(cloud, MAP_FRAME, stamp.sec,
                                                     stamp.nanosec))
@@ -220,8 +221,7 @@ class StereoNode(Node):
         cells = self.cells
         centres = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(np.float64)
         texture = self.shot.texture(centres, self.resolution, self.camera_pose, self.shot_pose)
-        cloud = textured_cells_cloud(centres, cells['intensity'], texture.colours,
-                                     texture.textured)
+        cloud = textured_cells(cells, texture.colours, texture.textured)
         stamp = stamp_from_seconds(self.shot.stamp_ns * 1e-9)
         self._textured.publish(serialize_point_cloud2(cloud, MAP_FRAME, stamp.sec,
                                                       stamp.nanosec))
