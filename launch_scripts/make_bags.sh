@@ -6,6 +6,8 @@
 #   cat_moving   the cat held, moved and re-grasped by the other hand, 120 s at 15 Hz (the
 #                paper's rate and the static cat's duration: the two maps compare on equal terms)
 #   bottle_static  the wine bottle on the table, 120 s at 15 Hz
+# Each with one stereo image pair of the object at its first frame (--stereo), taken by the
+# virtual rig of config/stereo.yaml.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$ROOT/launch_scripts/bootstrap.sh"
@@ -20,7 +22,7 @@ export OPENBLAS_CORETYPE=Haswell
 cd "$ROOT"
 DIR="${1:-bags}"
 mkdir -p "$DIR"
-"$SIM" --object cat --static --rate 15 --duration 120 --seed 1 --output "$DIR/cat_static" --force --quiet
-"$SIM" --object cat --moving --regrasp --rate 15 --duration 120 --seed 1 --output "$DIR/cat_moving" --force --quiet
-"$SIM" --object bottle --static --rate 15 --duration 120 --seed 3 --output "$DIR/bottle_static" --force --quiet
+"$SIM" --object cat --static --rate 15 --duration 120 --seed 1 --stereo --output "$DIR/cat_static" --force --quiet
+"$SIM" --object cat --moving --regrasp --rate 15 --duration 120 --seed 1 --stereo --output "$DIR/cat_moving" --force --quiet
+"$SIM" --object bottle --static --rate 15 --duration 120 --seed 3 --stereo --output "$DIR/bottle_static" --force --quiet
 du -sh "$DIR"/* | sed 's/^/[make_bags] /'

@@ -25,9 +25,11 @@ def test_make_bags_regenerates_the_bundled_bags_bit_for_bit(tmp_path):
 
 
 def test_bundled_bags_stay_small():
-    # Three 120 s sessions at 15 Hz: about 12 MB, most of it the three 3 MB truth sidecars.
+    # Three 120 s sessions at 15 Hz with one stereo pair each: about 24 MB, most of it the
+    # truth sidecars (surface samples and colours, the true depth of the left image: 5 MB
+    # each) and the image pairs (1.8 MB each).
     total = sum(p.stat().st_size for p in (WORKSPACE / 'bags').rglob('*') if p.is_file())
-    assert total < 14e6, f'bundled bags take {total / 1e6:.1f} MB'
+    assert total < 30e6, f'bundled bags take {total / 1e6:.1f} MB'
 
 
 def test_bundled_sessions_are_120_s_at_15_hz():
@@ -42,3 +44,19 @@ def test_bundled_sessions_are_120_s_at_15_hz():
         assert truth.rate == 15.0 and truth.settings['duration'] == 120.0, name
         assert len(truth.object_times) == 120 * 15, name
     assert load_truth(WORKSPACE / 'bags' / 'cat_moving.truth.npz').settings['regrasp']
+
+
+def test_bundled_sessions_carry_a_stereo_pair_with_its_truth():
+    from inhand_common.bag_source import BagSource
+    from inhand_common.ground_truth import load_truth
+    for name in BAGS:
+        with BagSource(WORKSPACE / 'bags' / name) as source:
+            counts = {topic: source.topics[topic].count for topic in source.topics
+                      if topic.startswith('stereo/')}
+        assert counts == {'stereo/left/image_raw': 1, 'stereo/right/image_raw': 1,
+                          'stereo/left/camera_info': 1, 'stereo/right/camera_info': 1}, name
+        truth = load_truth(WORKSPACE / 'bags' / f'{name}.truth.npz')
+        assert truth.stereo is not None and truth.surface_colours is not None, name
+        assert truth.stereo.depth.shape == (480, 640), name
+        assert truth.stereo.object_mask.mean() > 0.01, name    # the object is in the picture
+        assert truth.stereo.time == truth.object_times[0], name

@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from inhand_common.ground_truth import truth_path, write_truth
-from inhand_common.ros_names import TRACKER_FRAME, station_pose_topic
+from inhand_common.ros_names import STEREO_FRAME, TRACKER_FRAME, station_pose_topic
 from inhand_common.rotations import (
     euler_zyx_to_quaternion,
     matrix_to_quaternion,
@@ -63,6 +63,8 @@ from inhand_common.rotations import (
 from inhand_mapping.pose_cdr import encode_pose_stamped
 from inhand_sim.exploration import FINGERS, Exploration, ExplorationSettings, TrackerNoise, explore
 from inhand_sim.objects import ObjectModel, get_object
+from inhand_sim.stereo_rig import StereoRig, StereoShot, render_pair
+from inhand_sim.textures import surface_colour
 
 __all__ = [
     'EPOCH',
@@ -103,6 +105,11 @@ class SessionSettings:
     regrasp_window: float = 3.0           # s the fingers are off the object per re-grasp
     regrasp_angle_range_deg: tuple = (60.0, 120.0)
     exploration: ExplorationSettings = field(default_factory=ExplorationSettings)
+    # One stereo pair of the object, taken at the first tracker frame (before the exploration;
+    # in tracked mode the object sensor is already streaming), by the default virtual rig
+    # (inhand_sim.stereo_rig) looking at the object from camera_distance.
+    stereo: bool = False
+    camera_distance: float = 0.42         # m
 
     def __post_init__(self):
         problems = []
@@ -118,6 +125,8 @@ class SessionSettings:
             problems.append('surface_samples must be >= 1')
         if self.seed < 0:
             problems.append(f'seed {self.seed} must be >= 0')
+        if not 0.15 <= self.camera_distance <= 2.0:
+            problems.append(f'camera_distance {self.camera_distance} must be in [0.15, 2] m')
         if self.static and self.second_object_sensor:
             problems.append('a static session has no object sensor, so no second one either')
         if problems:
@@ -138,10 +147,12 @@ class SimulatedSession:
     exploration: Exploration
     truth: dict                    # the sidecar's arrays (inhand_common.ground_truth)
     regrasp_windows: list          # (start, end) s relative to the first frame
+    stereo_shot: StereoShot | None = None   # the image pair, when settings.stereo
 
     @property
     def message_count(self) -> int:
-        return self.poses.shape[0] * self.poses.shape[1]
+        """Messages in the bag: every station's pose per frame, and the stereo pair's four."""
+        return self.poses.shape[0] * self.poses.shape[1] + (4 if self.stereo_shot else 0)
 
     @property
     def duration(self) -> float:
@@ -327,9 +338,40 @@ def simulate(settings: SessionSettings, progress: Callable[[str], None] | None =
         'object_positions': obj_pos,
         'object_quaternions': obj_q,
     }
+    shot = None
+    if settings.stereo:
+        say('stereo pair')
+        shot = _stereo_shot(settings, obj, obj_pos[0], obj_q[0])
+        truth.update(_stereo_truth(settings, shot, surface, times_s[0]))
     return SimulatedSession(settings=settings, object=obj, stations=tuple(stations),
                             stamps_ns=stamps_ns, poses=poses, exploration=exploration,
-                            truth=truth, regrasp_windows=windows)
+                            truth=truth, regrasp_windows=windows, stereo_shot=shot)
+
+
+def _stereo_shot(settings: SessionSettings, obj: ObjectModel, position: np.ndarray,
+                 quaternion: np.ndarray) -> StereoShot:
+    """The pair the rig takes of the object at its first pose: static objects on their table,
+    held objects in the air (the backdrop behind them either way). The rig stands where a bench
+    rig would: fixed, aimed at the table's object position whether or not the object is held
+    (so one camera_pose calibration serves every session)."""
+    rig = StereoRig.looking_at(target=settings.static_centre, distance=settings.camera_distance)
+    # Its own stream of the seed: the poses above stay what they were without a camera.
+    rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(6)[5])
+    return render_pair(rig, obj, (position, quaternion), rng, table=settings.static)
+
+
+def _stereo_truth(settings: SessionSettings, shot: StereoShot, surface: np.ndarray,
+                  stamp: float) -> dict:
+    """The truth file's stereo keys (inhand_common.ground_truth.STEREO_KEYS)."""
+    return {
+        'surface_colours': surface_colour(settings.object_name, surface),
+        'camera_pose': np.asarray(shot.camera_pose, dtype=np.float64),
+        'stereo_time': np.array(float(stamp)),
+        'stereo_depth': shot.depth.astype(np.float32),
+        'stereo_object_mask': shot.mask.astype(bool),
+        'stereo_focal': np.array(float(shot.focal)),
+        'stereo_baseline': np.array(float(shot.baseline)),
+    }
 
 
 # --- files -------------------------------------------------------------------------------
@@ -348,7 +390,10 @@ def write_bag(session: SimulatedSession, path, progress: Callable[[float], None]
     poses = session.poses.tolist()
     stamp_list = stamps.tolist()
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        connections = [writer.add_connection('/' + station_pose_topic(name), MSGTYPE, typestore=store)
+        if session.stereo_shot is not None:
+            _write_stereo_pair(writer, store, session.stereo_shot, int(stamps[0]))
+        connections = [writer.add_connection('/' + station_pose_topic(name), MSGTYPE,
+                                             typestore=store)
                        for name in session.stations]
         step = max(1, n_frames // 50)
         for k in range(n_frames):
@@ -359,6 +404,39 @@ def write_bag(session: SimulatedSession, path, progress: Callable[[float], None]
             if progress is not None and (k % step == 0 or k == n_frames - 1):
                 progress((k + 1) / n_frames)
     return path
+
+
+STEREO_TOPICS = {  # side: (image topic, camera_info topic, frame)
+    'left': ('/stereo/left/image_raw', '/stereo/left/camera_info', STEREO_FRAME),
+    'right': ('/stereo/right/image_raw', '/stereo/right/camera_info', 'stereo_right_optical'),
+}
+
+
+def _write_stereo_pair(writer, store, shot: StereoShot, stamp_ns: int) -> None:
+    """The pair as a camera driver publishes it: rgb8 images and their camera_info, all four
+    stamped with the exposure (the first tracker frame)."""
+    types = store.types
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    for side, image, camera in (('left', shot.left, shot.left_camera),
+                                ('right', shot.right, shot.right_camera)):
+        image_topic, info_topic, frame = STEREO_TOPICS[side]
+        header = types['std_msgs/msg/Header'](
+            stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec), frame_id=frame)
+        height, width = image.shape[:2]
+        image_msg = types['sensor_msgs/msg/Image'](
+            header=header, height=height, width=width, encoding='rgb8', is_bigendian=0,
+            step=3 * width, data=np.ascontiguousarray(image, dtype=np.uint8).reshape(-1))
+        roi = types['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0,
+                                                       do_rectify=False)
+        info_msg = types['sensor_msgs/msg/CameraInfo'](
+            header=header, height=camera.height, width=camera.width,
+            distortion_model=camera.distortion_model, d=np.asarray(camera.D, dtype=np.float64),
+            k=camera.K.reshape(-1), r=camera.R.reshape(-1), p=camera.P.reshape(-1),
+            binning_x=0, binning_y=0, roi=roi)
+        for topic, msgtype, msg in ((image_topic, 'sensor_msgs/msg/Image', image_msg),
+                                    (info_topic, 'sensor_msgs/msg/CameraInfo', info_msg)):
+            connection = writer.add_connection(topic, msgtype, typestore=store)
+            writer.write(connection, stamp_ns, store.serialize_cdr(msg, msgtype))
 
 
 def write_session(session: SimulatedSession, output, force: bool = False,

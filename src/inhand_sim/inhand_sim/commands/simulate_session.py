@@ -79,6 +79,11 @@ def make_parser() -> argparse.ArgumentParser:
                         help='fingertip tracker noise, standard deviation per axis (default 1.0)')
     parser.add_argument('--output', required=True, metavar='bags/NAME',
                         help='bag folder to write; the ground truth goes to NAME.truth.npz beside it')
+    parser.add_argument('--stereo', action='store_true',
+                        help='also one stereo image pair (and both camera_infos) of the object, '
+                        'stamped at the first tracker frame, with its true depth in the sidecar')
+    parser.add_argument('--camera-distance', type=number(at_least=0.15, at_most=2.0, unit='m'),
+                        default=0.42, help='distance of the stereo rig from the object (m)')
     parser.add_argument('--force', action='store_true', help='replace an existing bag and sidecar')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
     return parser
@@ -135,7 +140,8 @@ def main(argv=None) -> int:
         object_name=args.object, static=args.static,
         regrasp=(args.regrasp is not False) and not args.static,
         second_object_sensor=args.second_object_sensor, rate=args.rate,
-        duration=args.duration, seed=args.seed, noise_mm=args.noise_mm)
+        duration=args.duration, seed=args.seed, noise_mm=args.noise_mm, stereo=args.stereo,
+        camera_distance=args.camera_distance)
     progress = _Progress(args.quiet)
     started = time.monotonic()
     session = simulate(settings, progress=lambda stage: progress.stage_done(stage))
@@ -152,7 +158,8 @@ def main(argv=None) -> int:
           f'{settings.rate:g} Hz, seed {settings.seed}, noise {settings.noise_mm:g} mm')
     print(f'  wrote {bag}/ : {session.message_count:,} messages '
           f'({len(session.stamps_ns):,} frames x {len(session.stations)} stations: '
-          f'{", ".join(session.stations)})')
+          f'{", ".join(session.stations)}'
+          f'{"; and a stereo pair with its camera_infos" if session.stereo_shot else ""})')
     print(f'  wrote {truth} : {len(tr["contacts"]):,} contacts, {len(tr["stray_points"]):,} '
           f'strays, {len(tr["surface_points"]):,} surface samples')
     print(f'  in {elapsed:.1f} s')
