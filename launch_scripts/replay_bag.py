@@ -3,7 +3,9 @@
     .venv/bin/python launch_scripts/replay_bag.py BAG [--config FILE] [--output DIR]
         [--name NAME] [--rate FACTOR | --fast] [--no-render]
 
-Starts registration_node and occupancy_node, replays BAG with bag_replay over real DDS,
+Starts registration_node and occupancy_node (and stereo_node with config/stereo.yaml when the
+bag holds a stereo pair: it publishes stereo/points and occupancy/textured), replays BAG
+with bag_replay over real DDS,
 waits for the last registered points to be integrated, calls occupancy/save, stops the
 nodes, then renders the map (render_map) and, when the bag has a ground-truth sidecar
 (BAG.truth.npz, written by simulate_session), prints its metrics (map_metrics). The
@@ -27,12 +29,16 @@ WORKSPACE = Path(__file__).resolve().parents[1]
 QUIET = 1.0  # s without registered points after the replay: the graph has caught up
 
 
-def bag_has_object_sensor(bag: Path) -> bool:
+STEREO_IMAGE_TOPIC = 'stereo/left/image_raw'
+
+
+def bag_topics(bag: Path) -> set[str] | None:
+    """The bag's topics (relative), or None if it cannot be read (bag_replay says why)."""
     try:
         with BagSource(bag) as source:
-            return OBJECT_POSE_TOPIC in source.topics
-    except BagError:  # let bag_replay report what is wrong with the bag
-        return True
+            return set(source.topics)
+    except BagError:
+        return None
 
 
 def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: list[str],
@@ -40,15 +46,20 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
     if not bag.exists():
         print(f'replay_bag: {bag}: no such bag', file=sys.stderr)
         return 2
+    topics = bag_topics(bag)
     if config is None:
-        config = WORKSPACE / 'config' / ('mapping.yaml' if bag_has_object_sensor(bag)
-                                         else 'mapping_static.yaml')
+        tracked = topics is None or OBJECT_POSE_TOPIC in topics
+        config = WORKSPACE / 'config' / ('mapping.yaml' if tracked else 'mapping_static.yaml')
+    # A bag with a stereo pair gets the stereo node too (the rig of config/stereo.yaml).
+    stereo = WORKSPACE / 'config' / 'stereo.yaml' if topics and STEREO_IMAGE_TOPIC in topics \
+        else None
     output.mkdir(parents=True, exist_ok=True)
     print(f'[launch] mapping graph with {config}; replaying {bag}', flush=True)
     started = time.monotonic()
     from sensor_msgs.msg import PointCloud2
     with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch:
-        mapping_graph(group, str(config), str(output), name)
+        mapping_graph(group, str(config), str(output), name,
+                      stereo_config=str(stereo) if stereo else None)
         # The registration node's first points must find the occupancy node listening.
         if not watch.wait_connected():
             print('[launch] the mapping nodes did not come up', file=sys.stderr)

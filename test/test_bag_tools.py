@@ -315,7 +315,9 @@ def test_record_captures_a_latched_topic_and_replay_latches_it_again(tmp_path):
         with running(['bag_record', '-o', str(output), 'occupancy/cloud']) as recorder:
             talker.wait_matched(publisher)
             assert publisher.wait_for_all_acked(Duration(seconds=10))
-            time.sleep(2.0)  # the replay below has 2 s to show the first to a late joiner
+            # The replay below has this long to show the first to a late joiner (a new
+            # participant's discovery takes 1-2 s here; 2 s failed half the time).
+            time.sleep(6.0)
             publisher.publish(second)
             assert publisher.wait_for_all_acked(Duration(seconds=10))
             assert recorder.interrupt() == 0, recorder.output()

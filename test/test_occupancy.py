@@ -18,6 +18,7 @@ import math
 import os
 import pickle
 import subprocess
+import sys
 import types
 
 import numpy as np
@@ -1187,22 +1188,30 @@ def test_a_ply_without_colours_is_byte_for_byte_what_it_always_was(tmp_path):
     assert body == old.tobytes()
 
 
-def head_map_io():
-    """map_io as committed at HEAD (the writer before colours), or None without git."""
+# The last commit whose map writer knew no colours.
+WRITER_BEFORE_COLOURS = '698a06350101ff6578184fe3376a90d4870a0cab'
+
+
+def map_io_before_colours():
+    """map_io as it was before colours (WRITER_BEFORE_COLOURS), or None without git."""
     try:
         source = subprocess.run(
-            ['git', 'show', 'HEAD:src/inhand_mapping/inhand_mapping/map_io.py'],
+            ['git', 'show', f'{WRITER_BEFORE_COLOURS}:src/inhand_mapping/inhand_mapping/map_io.py'],
             cwd=os.path.dirname(__file__), capture_output=True, text=True, timeout=30,
             check=True).stdout
     except (OSError, subprocess.SubprocessError):
         return None
-    module = types.ModuleType('map_io_at_head')
-    exec(compile(source, 'HEAD:map_io.py', 'exec'), module.__dict__)
+    module = types.ModuleType('map_io_before_colours')
+    sys.modules[module.__name__] = module     # dataclasses look their module up there
+    try:
+        exec(compile(source, 'map_io_before_colours.py', 'exec'), module.__dict__)
+    finally:
+        del sys.modules[module.__name__]
     return module
 
 
-def test_maps_without_colour_match_the_writer_at_head_and_its_files_still_load(tmp_path):
-    old = head_map_io()
+def test_maps_without_colour_match_the_writer_before_colours_and_its_files_still_load(tmp_path):
+    old = map_io_before_colours()
     if old is None:
         pytest.skip('git or the repository history is not available')
     grid = example_grid()

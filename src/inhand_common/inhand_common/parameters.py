@@ -49,7 +49,7 @@ class ParamSpec:
     description: str
     minimum: float | None = None
     maximum: float | None = None
-    choices: tuple | None = None
+    choices: tuple[Any, ...] | None = None
     length: int | None = None
     min_length: int | None = None
     read_only: bool = True
@@ -123,9 +123,9 @@ class ParamSpec:
         return None if self._scalar_ok(value) else self._refusal(value)
 
     def _scalar_ok(self, value: Any) -> bool:
-        wanted = self.element_type
-        if type(value) is not wanted:  # bool is an int subclass: compare exactly
+        if not _exactly(value, self.element_type):  # bool is an int subclass: compare exactly
             return False
+        wanted = self.element_type
         if wanted is float and not math.isfinite(value):
             return False
         if self.choices is not None and value not in self.choices:
@@ -181,3 +181,8 @@ def load_yaml_parameters(path: str, node_name: str) -> dict[str, Any]:
         if isinstance(section, dict):
             merged.update(section.get('ros__parameters', {}) or {})
     return merged
+
+
+def _exactly(value: Any, wanted: type) -> bool:
+    """``type(value) is wanted``, apart so that type checkers do not narrow ``value``."""
+    return type(value) is wanted

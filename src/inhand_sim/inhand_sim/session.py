@@ -433,8 +433,8 @@ def _write_stereo_pair(writer, store, shot: StereoShot, stamp_ns: int) -> None:
             distortion_model=camera.distortion_model, d=np.asarray(camera.D, dtype=np.float64),
             k=camera.K.reshape(-1), r=camera.R.reshape(-1), p=camera.P.reshape(-1),
             binning_x=0, binning_y=0, roi=roi)
-        for topic, msgtype, msg in ((image_topic, 'sensor_msgs/msg/Image', image_msg),
-                                    (info_topic, 'sensor_msgs/msg/CameraInfo', info_msg)):
+        for topic, msgtype, msg in ((info_topic, 'sensor_msgs/msg/CameraInfo', info_msg),
+                                    (image_topic, 'sensor_msgs/msg/Image', image_msg)):
             connection = writer.add_connection(topic, msgtype, typestore=store)
             writer.write(connection, stamp_ns, store.serialize_cdr(msg, msgtype))
 

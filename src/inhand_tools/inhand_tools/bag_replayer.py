@@ -24,6 +24,7 @@ __all__ = ['ReplayOptions', 'ReplayStats', 'Replayer', 'Stream', 'plan_streams',
            'replay_summary', 'start_stamp']
 
 TIMED_WAIT = 1.0          # s: a timed replay waits this long at most for subscribers
+SETTLE = 0.5              # s: after the match, for the readers to match our writers too
 TIMED_ACK_TIMEOUT = 5.0   # s: at the end of a timed replay, wait at most this for acks
 SLOW_PUBLISH = 0.002      # s: a publish() that took longer was held back by a reader
 
@@ -181,6 +182,10 @@ class Replayer:
         if not wait_until(lambda: not lonely(), self.stop, timeout) and not self.stop.is_set():
             print(f'bag_replay: no subscriber on {", ".join(lonely())}; starting anyway',
                   file=sys.stderr, flush=True)
+        # Our writers see the readers; the readers may not see our writers yet, and what comes
+        # before that is lost to a best-effort reader (a camera topic: the one stereo pair at
+        # a bag's start) and to a volatile reliable one. Let discovery settle both ways.
+        self.stop.wait(SETTLE)
         if self.options.fast:
             self.warn_best_effort_readers()
 

@@ -134,15 +134,19 @@ def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
 
 
 def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: str,
-                  namespace: str | None = None) -> None:
+                  namespace: str | None = None, stereo_config: str | None = None) -> None:
     """Start ``registration_node`` and ``occupancy_node`` with the parameters of ``config``
-    (a file with both nodes' sections), saving maps to ``output_dir/map_name``."""
+    (a file with both nodes' sections), saving maps to ``output_dir/map_name``; with
+    ``stereo_config`` (the rig's file, e.g. config/stereo.yaml) also ``stereo_node``, which
+    takes its session settings from ``config`` and the rig's from ``stereo_config``."""
     ros_args = ['--ros-args', '--params-file', config]
     if namespace:
         ros_args += ['-r', f'__ns:={namespace}']
     group.start('registration', ['registration_node', *ros_args])
     group.start('occupancy', ['occupancy_node', *ros_args, '-p', f'output_dir:={output_dir}',
                               '-p', f'map_name:={map_name}'])
+    if stereo_config:
+        group.start('stereo', ['stereo_node', *ros_args, '--params-file', stereo_config])
 
 
 class TopicWatch:

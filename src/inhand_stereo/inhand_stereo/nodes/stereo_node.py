@@ -21,6 +21,7 @@ keeps running. The work is in stereo_pipeline.py; this file only translates mess
 from __future__ import annotations
 
 import time
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -49,6 +50,13 @@ from inhand_stereo.stereo_pairing import PairBuffer
 from inhand_stereo.stereo_pipeline import StereoPipeline, StereoShot, pose_vector
 
 IMAGE_QOS = qos_profile_sensor_data          # best-effort, depth 5
+# A best-effort reader matches every camera driver and bag replay, but Fast DDS never hands it
+# a message that needs many UDP fragments (a 640x480 rgb8 image is 921,600 bytes; measured
+# here: 0 of 3 arrive, while 400 kB ones do). So each image topic is also read reliably: a
+# reliable publisher (a bag replay, most drivers) delivers to both readers, and the copy that
+# comes second is recognised by its stamp and dropped. The camera_infos likewise (a fast
+# replay's burst loses them on a best-effort reader).
+RELIABLE_IMAGE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 POSE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 POINT_FIELDS = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')])
 
@@ -95,7 +103,8 @@ class StereoNode(Node):
         values = declare_parameters(self, STEREO_PARAMETERS)
         self.camera_pose = camera_pose_from(values['camera_pose'])
         self.resolution = float(values['resolution'])
-        self.pipeline = StereoPipeline(DisparityConfig.from_parameters(values),
+        disparity = {spec.name: values[spec.name] for spec in DISPARITY_PARAMETERS}
+        self.pipeline = StereoPipeline(DisparityConfig.from_parameters(disparity),
                                        point_step=values['point_step'])
         self.registrar = Registrar(values['mode'], values['max_gap'])
         self.pairs: PairBuffer[Image] = PairBuffer()
@@ -104,12 +113,14 @@ class StereoNode(Node):
         self.shot_pose: np.ndarray | None = None     # map frame in the tracker at the shot
         self.cells: np.ndarray | None = None         # the latest occupied cloud's points
         self.counts = {'pairs': 0, 'refused': 0, 'no_object_pose': 0}
+        self._seen: dict[str, deque[int]] = {side: deque(maxlen=16) for side in ('left', 'right')}
         for side in ('left', 'right'):
-            self.create_subscription(Image, f'stereo/{side}/image_raw',
-                                     lambda msg, side=side: self._on_image(side, msg), IMAGE_QOS)
-            self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
-                                     lambda msg, side=side: self.infos.__setitem__(side, msg),
-                                     IMAGE_QOS)
+            for qos in (IMAGE_QOS, RELIABLE_IMAGE_QOS):
+                self.create_subscription(Image, f'stereo/{side}/image_raw',
+                                         lambda msg, side=side: self._on_image(side, msg), qos)
+                # camera_info too: a best-effort reader loses it in a fast replay's burst
+                self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
+                                         lambda msg, side=side: self._on_info(side, msg), qos)
         if values['mode'] == 'tracked':
             self.create_subscription(PoseStamped, station_pose_topic(values['object_name']),
                                      self._on_object_pose, POSE_QOS, raw=True)
@@ -118,6 +129,7 @@ class StereoNode(Node):
         self._points = self.create_publisher(PointCloud2, 'stereo/points', LATCHED_QOS)
         self._textured = self.create_publisher(PointCloud2, 'occupancy/textured', LATCHED_QOS)
         self._pending: StereoShot | None = None     # waits for the object pose at its stamp
+        self._unexplained: tuple[int, Image, Image] | None = None   # waits for camera_info
         config = self.pipeline.matcher.config
         self.get_logger().info(
             f"stereo: {'semi-global' if config.stereo_algorithm else 'block'} matching, "
@@ -127,9 +139,18 @@ class StereoNode(Node):
     # ------------------------------------------------------------------ inputs
     def _on_image(self, side: str, msg: Image) -> None:
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if stamp_ns in self._seen[side]:
+            return   # the same image through the other reader
+        self._seen[side].append(stamp_ns)
         pair = self.pairs.add(side, stamp_ns, msg)
         if pair is not None:
             self._process(*pair)
+
+    def _on_info(self, side: str, msg: CameraInfo) -> None:
+        self.infos[side] = msg
+        if self._unexplained is not None and len(self.infos) == 2:
+            # a pair came before its camera_infos (they travel on their own topics)
+            self._process(*self._unexplained)
 
     def _on_object_pose(self, raw: bytes) -> None:
         stamps, _, poses = decode_pose_stamped_many([raw])
@@ -144,12 +165,19 @@ class StereoNode(Node):
 
     # ------------------------------------------------------------------ work
     def _process(self, stamp_ns: int, left: Image, right: Image) -> None:
+        missing = [side for side in ('left', 'right') if side not in self.infos]
+        if missing:
+            # Held until the camera_info comes; a newer pair replaces it, and the node says so
+            # once (a camera without calibration publishes none).
+            if self._unexplained is None:
+                self.get_logger().warning(
+                    f'stereo pair at {stamp_ns * 1e-9:.3f} s waits: no camera_info for the '
+                    f'{" and ".join(missing)} camera yet (stereo/{missing[0]}/camera_info)')
+            self._unexplained = (stamp_ns, left, right)
+            return
+        self._unexplained = None
         self.counts['pairs'] += 1
         try:
-            missing = [side for side in ('left', 'right') if side not in self.infos]
-            if missing:
-                raise ValueError(f'no camera_info for the {" and ".join(missing)} camera yet '
-                                 f'(stereo/{missing[0]}/camera_info)')
             if left.encoding != right.encoding:
                 raise ValueError(f'left image is {left.encoding} but right image is '
                                  f'{right.encoding}')
