@@ -26,6 +26,7 @@ import yaml
 from numpy.typing import ArrayLike
 
 from inhand_common.atomic_file import atomic_write
+from inhand_common.yaml_errors import describe_yaml_error
 from inhand_stereo.camera_model import CameraModel, CameraModelError
 
 __all__ = ['CameraInfoYamlError', 'camera_info_yaml_text', 'format_float', 'read_camera_info_yaml',
@@ -64,10 +65,7 @@ def read_camera_info_yaml(path: str | os.PathLike[str]) -> CameraModel:
     try:
         document = yaml.safe_load(text)
     except yaml.YAMLError as error:
-        mark = getattr(error, 'problem_mark', None)
-        where = f' at line {mark.line + 1}' if mark is not None else ''
-        problem = getattr(error, 'problem', None) or str(error).splitlines()[0]
-        raise CameraInfoYamlError(f'{path}: not valid YAML{where} ({problem})') from None
+        raise CameraInfoYamlError(f'{path}: {describe_yaml_error(error)}') from None
     try:
         return camera_model_from_document(document)
     except (CameraInfoYamlError, CameraModelError) as error:

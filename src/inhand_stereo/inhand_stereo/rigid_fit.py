@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike
 from inhand_common.array_types import Floats, Matrix3, Points, Vector3
 from inhand_common.atomic_file import atomic_write
 from inhand_common.rotations import matrix_to_quaternion
+from inhand_common.yaml_errors import describe_yaml_error
 from inhand_stereo.camera_info_yaml import format_float
 from inhand_stereo.camera_model import CameraModel
 
@@ -242,10 +243,7 @@ def _yaml_rows(text: str) -> list[tuple[str, dict[str, Any]]]:
     try:
         document = yaml.safe_load(text)
     except yaml.YAMLError as error:
-        mark = getattr(error, 'problem_mark', None)
-        where = f' at line {mark.line + 1}' if mark is not None else ''
-        problem = getattr(error, 'problem', None) or str(error).splitlines()[0]
-        raise CorrespondenceError(f'not valid YAML{where} ({problem})') from None
+        raise CorrespondenceError(describe_yaml_error(error)) from None
     entries = document.get('points') if isinstance(document, dict) else document
     if not isinstance(entries, list) or not entries:
         raise CorrespondenceError(f'expected a non-empty list under points:, each entry a '
