@@ -193,8 +193,13 @@ class Replayer:
         from rclpy.qos import ReliabilityPolicy
         for stream in self.streams.values():
             topic = stream.publisher.topic_name
-            for info in self.node.get_subscriptions_info_by_topic(topic):
-                if info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT:
+            readers = self.node.get_subscriptions_info_by_topic(topic)
+            # A node that also reads the topic reliably (stereo_node does) loses nothing.
+            reliable = {(info.node_namespace, info.node_name) for info in readers
+                        if info.qos_profile.reliability == ReliabilityPolicy.RELIABLE}
+            for info in readers:
+                if info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT and \
+                        (info.node_namespace, info.node_name) not in reliable:
                     print(f'bag_replay: warning: {info.node_namespace.rstrip("/")}/'
                           f'{info.node_name} subscribes to {topic} best effort: it '
                           'acknowledges nothing, so --fast cannot keep it from losing '
