@@ -91,3 +91,70 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config):
     assert 0.15 < seen.mean() < 0.7, seen.mean()
     rgb = textured['rgb'].view(np.uint32)
     assert np.all(rgb[~seen] == 0) and np.all(rgb[seen] != 0)
+
+
+class PairPublisher(BackgroundNode):
+    """Publishes stereo pairs and camera_infos as a camera driver would (reliably)."""
+
+    def __init__(self):
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import CameraInfo, Image
+        super().__init__('test_pair_publisher')
+        qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self.images = {side: self.node.create_publisher(Image, f'stereo/{side}/image_raw', qos)
+                       for side in ('left', 'right')}
+        self.infos = {side: self.node.create_publisher(CameraInfo, f'stereo/{side}/camera_info',
+                                                       qos) for side in ('left', 'right')}
+        self.start()
+
+    def wait_matched(self, timeout: float = 20.0) -> None:
+        deadline = time.monotonic() + timeout
+        publishers = [*self.images.values(), *self.infos.values()]
+        while any(p.get_subscription_count() == 0 for p in publishers):
+            assert time.monotonic() < deadline, 'stereo_node did not subscribe'
+            time.sleep(0.05)
+        time.sleep(0.5)   # and the node's readers match ours
+
+    def publish(self, sec: int, sizes=((64, 48), (64, 48)), encoding='rgb8', focal=60.0):
+        from sensor_msgs.msg import CameraInfo, Image
+        for side, (width, height) in zip(('left', 'right'), sizes):
+            info = CameraInfo()
+            info.header.stamp.sec = sec
+            info.width, info.height = 64, 48
+            info.distortion_model = 'plumb_bob'
+            info.k = [focal, 0.0, 32.0, 0.0, focal, 24.0, 0.0, 0.0, 1.0]
+            info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+            tx = 0.0 if side == 'left' else -focal * 0.07
+            info.p = [focal, 0.0, 32.0, tx, 0.0, focal, 24.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+            self.infos[side].publish(info)
+            image = Image()
+            image.header.stamp.sec = sec
+            image.width, image.height, image.encoding = width, height, encoding
+            image.step = 3 * width
+            image.data = bytes(3 * width * height)
+            self.images[side].publish(image)
+
+
+def test_bad_pairs_are_refused_in_one_line_and_the_node_keeps_running():
+    from ros_helpers import running
+    config = str(WORKSPACE / 'config' / 'mapping_static.yaml')
+    with running(['stereo_node', '--ros-args', '--params-file', config]) as node:
+        publisher = PairPublisher()
+        try:
+            publisher.wait_matched()
+            publisher.publish(1, sizes=((64, 48), (32, 24)))
+            publisher.publish(2, encoding='bayer_rggb8')
+            publisher.publish(3, focal=0.0)
+            expected = ['left image is 64x48 but right image is 32x24',
+                        "unsupported image encoding 'bayer_rggb8'",
+                        'zero or negative focal length']
+            deadline = time.monotonic() + 20
+            while not all(text in node.output() for text in expected):
+                assert time.monotonic() < deadline, node.output()
+                time.sleep(0.1)
+            assert node.alive()
+            refusals = [line for line in node.output().splitlines() if 'not used' in line]
+            assert len(refusals) == 3, refusals            # one line each
+            assert 'Traceback' not in node.output()
+        finally:
+            publisher.close()

@@ -13,9 +13,10 @@ Publishes, reliable and transient-local (a late subscriber gets the latest):
 last re-coloured from the last pair on every map update.
 
 A pair that cannot be used (sizes that differ, an unsupported encoding, a camera_info
-missing, inconsistent with the image or with a zero focal length, a right P without a
-baseline) gets one log line naming the problem; nothing is published from it and the node
-keeps running. The work is in stereo_pipeline.py; this file only translates messages.
+inconsistent with the image or with a zero focal length, a right P without a baseline) gets
+one log line naming the problem; nothing is published from it and the node keeps running. A
+pair that comes before its camera_infos waits for them (with one warning). The work is in
+stereo_pipeline.py; this file only translates messages.
 """
 
 from __future__ import annotations
@@ -92,7 +93,8 @@ def camera_pose_from(values: list[float]) -> np.ndarray:
     return pose
 
 
-def camera_model(msg: CameraInfo, side: str) -> CameraModel:
+def camera_model_of(msg: CameraInfo, side: str) -> CameraModel:
+    """The checked camera model of a CameraInfo message (``side`` names it in refusals)."""
     return CameraModel.from_fields(msg.width, msg.height, msg.k, msg.d, msg.r, msg.p,
                                    msg.distortion_model, name=side)
 
@@ -187,8 +189,8 @@ class StereoNode(Node):
             images = [image_to_array(m.encoding, m.height, m.width, m.step, m.data,
                                      bool(m.is_bigendian)) for m in (left, right)]
             shot = self.pipeline.process(stamp_ns, images[0], images[1], left.encoding,
-                                         camera_model(self.infos['left'], 'left'),
-                                         camera_model(self.infos['right'], 'right'))
+                                         camera_model_of(self.infos['left'], 'left'),
+                                         camera_model_of(self.infos['right'], 'right'))
         except ValueError as error:
             self.counts['refused'] += 1
             self.get_logger().error(f'stereo pair at {stamp_ns * 1e-9:.3f} s not used: {error}')
