@@ -63,7 +63,7 @@ from inhand_common.rotations import (
 from inhand_mapping.pose_cdr import encode_pose_stamped
 from inhand_sim.exploration import FINGERS, Exploration, ExplorationSettings, TrackerNoise, explore
 from inhand_sim.objects import ObjectModel, get_object
-from inhand_sim.stereo_rig import StereoRig, StereoShot, render_pair
+from inhand_sim.stereo_rig import RenderedPair, StereoRig, render_pair
 from inhand_sim.textures import surface_colour
 
 __all__ = [
@@ -147,7 +147,7 @@ class SimulatedSession:
     exploration: Exploration
     truth: dict                    # the sidecar's arrays (inhand_common.ground_truth)
     regrasp_windows: list          # (start, end) s relative to the first frame
-    stereo_shot: StereoShot | None = None   # the image pair, when settings.stereo
+    stereo_shot: RenderedPair | None = None   # the image pair, when settings.stereo
 
     @property
     def message_count(self) -> int:
@@ -349,7 +349,7 @@ def simulate(settings: SessionSettings, progress: Callable[[str], None] | None =
 
 
 def _stereo_shot(settings: SessionSettings, obj: ObjectModel, position: np.ndarray,
-                 quaternion: np.ndarray) -> StereoShot:
+                 quaternion: np.ndarray) -> RenderedPair:
     """The pair the rig takes of the object at its first pose: static objects on their table,
     held objects in the air (the backdrop behind them either way). The rig stands where a bench
     rig would: fixed, aimed at the table's object position whether or not the object is held
@@ -360,7 +360,7 @@ def _stereo_shot(settings: SessionSettings, obj: ObjectModel, position: np.ndarr
     return render_pair(rig, obj, (position, quaternion), rng, table=settings.static)
 
 
-def _stereo_truth(settings: SessionSettings, shot: StereoShot, surface: np.ndarray,
+def _stereo_truth(settings: SessionSettings, shot: RenderedPair, surface: np.ndarray,
                   stamp: float) -> dict:
     """The truth file's stereo keys (inhand_common.ground_truth.STEREO_KEYS)."""
     return {
@@ -412,7 +412,7 @@ STEREO_TOPICS = {  # side: (image topic, camera_info topic, frame)
 }
 
 
-def _write_stereo_pair(writer, store, shot: StereoShot, stamp_ns: int) -> None:
+def _write_stereo_pair(writer, store, shot: RenderedPair, stamp_ns: int) -> None:
     """The pair as a camera driver publishes it: rgb8 images and their camera_info, all four
     stamped with the exposure (the first tracker frame)."""
     types = store.types

@@ -28,7 +28,7 @@ Conventions
   are what a camera with that lens sees: each raw pixel's ray is found by inverting the
   distortion exactly (to 1e-12) and cast; rectifying them with the CameraInfo (OpenCV's
   ``initUndistortRectifyMap(K, D, R, P)``) gives the undistorted images.
-* Truth (:class:`StereoShot`) is given in the RECTIFIED left image (identical to the left image
+* Truth (:class:`RenderedPair`) is given in the RECTIFIED left image (identical to the left image
   when it is already rectified): ``depth`` = z in the left rectified camera frame (m) of the
   surface each pixel centre's ray meets first (object, table or backdrop: every ray meets
   something), ``disparity`` = ``fx * baseline / depth`` (px; ``x_left - x_right`` of that
@@ -58,7 +58,7 @@ Speed: the sphere tracing (and the shadow rays, and the shading) run in compiled
 :meth:`ObjectModel.sdf`'s (a test holds them to 1e-12); rays march only inside the object's
 bounding box, skipping primitives whose bounding sphere is farther than the nearest so far,
 and stop within 10 um of the surface. The hits are then evaluated with the object's own
-``sdf_grad`` (normals, and the residual |sdf| reported in ``StereoShot.max_sdf_residual``).
+``sdf_grad`` (normals, and the residual |sdf| reported in ``RenderedPair.max_sdf_residual``).
 A 640 x 480 pair takes about 0.7-1 s on one core (the first call in a fresh cache compiles
 the kernels: 10-20 s, then cached beside the module).
 """
@@ -94,8 +94,8 @@ __all__ = [
     'OBJECT',
     'TABLE',
     'Plane',
+    'RenderedPair',
     'StereoRig',
-    'StereoShot',
     'compiled_sdf',
     'distort_normalized',
     'look_at_pose',
@@ -690,7 +690,7 @@ def _shade(scene: _Scene, cast_: _Cast, eye: np.ndarray, *, ambient: float, diff
 # --- rendering ---------------------------------------------------------------------------
 
 @dataclass
-class StereoShot:
+class RenderedPair:
     """One rendered pair and its exact truth (see the module docstring for conventions)."""
 
     left: np.ndarray                  # (H, W, 3) uint8 RGB, raw left image
@@ -821,7 +821,7 @@ def render_pair(rig: StereoRig, obj: ObjectModel | str, object_pose, rng: np.ran
                 light: Sequence[float] = DEFAULT_LIGHT, ambient: float = 0.35,
                 diffuse: float = 0.7, specular: float = 0.6, shadows: bool = True,
                 blur_sigma: float = 0.6, noise_sigma: float = 2.0, supersample: int = 1,
-                edge_samples: int = 3) -> StereoShot:
+                edge_samples: int = 3) -> RenderedPair:
     """Render the left and right images of ``obj`` (a model or its name) at ``object_pose``
     = (position, quaternion xyzw) of the object frame in the tracker frame.
 
@@ -878,7 +878,7 @@ def render_pair(rig: StereoRig, obj: ObjectModel | str, object_pose, rng: np.ran
     depth = ((truth.points - cam_position) @ cam_rotation[:, 2]).reshape(h, w)
     disparity = left_camera.P[0, 0] * rig.baseline / depth
     surface = truth.label.reshape(h, w)
-    return StereoShot(
+    return RenderedPair(
         left=left, right=right, left_camera=left_camera, right_camera=right_camera,
         depth=depth, disparity=disparity, mask=surface == OBJECT, surface=surface,
         albedo=truth.albedo.reshape(h, w, 3), camera_pose=np.array(rig.camera_pose),
