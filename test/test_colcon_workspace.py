@@ -14,10 +14,11 @@ from conftest import WORKSPACE
 
 EXECUTABLES = {
     'polhemus_liberty': ['liberty_driver', 'liberty_emulator'],
-    'inhand_mapping': ['registration_node', 'occupancy_node', 'build_map'],
+    'inhand_mapping': ['registration_node', 'occupancy_node'],
     'inhand_sim': ['simulate_session'],
     'inhand_stereo': ['stereo_node', 'calibrate_stereo', 'calibrate_camera_tracker'],
-    'inhand_tools': ['bag_replay', 'bag_record', 'topic_echo', 'map_metrics', 'render_map'],
+    'inhand_tools': ['bag_replay', 'bag_record', 'topic_echo', 'map_metrics', 'render_map',
+                     'build_map'],
 }
 
 

@@ -3,6 +3,7 @@ whole graph (registration, occupancy, stereo), and the textured map comes out.""
 
 from __future__ import annotations
 
+import subprocess
 import time
 
 import numpy as np
@@ -11,8 +12,9 @@ import pytest
 from conftest import WORKSPACE
 from inhand_common.ground_truth import load_truth
 from inhand_common.point_cloud import from_point_cloud2
+from inhand_mapping.map_io import read_ply
 from inhand_tools.launching import ProcessGroup, mapping_graph
-from ros_helpers import BackgroundNode
+from ros_helpers import BackgroundNode, call_trigger, executable_path
 
 pytestmark = pytest.mark.dds
 
@@ -66,6 +68,7 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config):
                         and latest['occupancy/textured'].width
                         == latest['occupancy/occupied'].width > 600)
             latest = listener.wait_for(complete)
+            assert call_trigger('occupancy/save').success
     finally:
         listener.close()
     disparity = latest['stereo/disparity']
@@ -91,6 +94,20 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config):
     assert 0.15 < seen.mean() < 0.7, seen.mean()
     rgb = textured['rgb'].view(np.uint32)
     assert np.all(rgb[~seen] == 0) and np.all(rgb[seen] != 0)
+
+    # The saved map carries the colours, and they are build_map's of the same bag and files.
+    offline = subprocess.run([executable_path('build_map'), str(WORKSPACE / 'bags' / bag),
+                              '--config', str(WORKSPACE / 'config' / config), '--config',
+                              str(WORKSPACE / 'config' / 'stereo.yaml'), '--output-dir',
+                              str(tmp_path / 'offline'), '--quiet'],
+                             capture_output=True, text=True, timeout=120)
+    assert offline.returncode == 0, offline.stderr
+    assert 'occupied cells seen by the stereo pair' in offline.stdout
+    saved, built = (read_ply(folder / f'{bag}.ply')
+                    for folder in (tmp_path, tmp_path / 'offline'))
+    assert np.array_equal(saved['textured'], seen.astype(np.uint8))
+    for field in ('x', 'y', 'z', 'red', 'green', 'blue', 'textured'):
+        assert np.array_equal(saved[field], built[field]), field
 
 
 class PairPublisher(BackgroundNode):

@@ -21,7 +21,6 @@ setup(
         'console_scripts': [
             'registration_node = inhand_mapping.nodes.registration_node:main',
             'occupancy_node = inhand_mapping.nodes.occupancy_node:main',
-            'build_map = inhand_mapping.commands.build_map:main',
         ],
     },
 )

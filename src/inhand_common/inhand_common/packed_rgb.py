@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['pack_rgb', 'rgb_of_colours']
+__all__ = ['colours_of_rgb', 'pack_rgb', 'rgb_of_colours']
 
 
 def pack_rgb(red: ArrayLike, green: ArrayLike, blue: ArrayLike) -> NDArray[np.float32]:
@@ -23,3 +23,9 @@ def rgb_of_colours(colours: ArrayLike) -> NDArray[np.float32]:
     """``pack_rgb`` of (N, 3) RGB rows."""
     rows = np.asarray(colours).reshape(-1, 3)
     return pack_rgb(rows[:, 0], rows[:, 1], rows[:, 2])
+
+
+def colours_of_rgb(rgb: ArrayLike) -> NDArray[np.uint8]:
+    """(N, 3) RGB rows of a packed ``rgb`` field: the inverse of :func:`rgb_of_colours`."""
+    packed = np.ascontiguousarray(rgb, dtype=np.float32).reshape(-1).view(np.uint32)
+    return np.stack([(packed >> shift) & 0xFF for shift in (16, 8, 0)], axis=1).astype(np.uint8)

@@ -7,7 +7,7 @@ map the nodes would have built.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -176,15 +176,23 @@ def parse_overrides(pairs: list[str]) -> dict:
     return values
 
 
-def load_parameters(config: str | None, overrides: dict
+def load_parameters(config: str | Sequence[str] | None, overrides: dict,
+                    also_known: Iterable[str] = ()
                     ) -> tuple[RegistrationConfig, OccupancyConfig]:
     """The registration and occupancy configurations the nodes would get from the
-    ``registration_node`` and ``occupancy_node`` sections of ``config``, then ``overrides``."""
-    registration = load_yaml_parameters(config, 'registration_node') if config else {}
-    occupancy = load_yaml_parameters(config, 'occupancy_node') if config else {}
+    ``registration_node`` and ``occupancy_node`` sections of ``config`` (one ROS parameter
+    file or several, later ones overriding earlier ones as repeated ``--params-file``), then
+    ``overrides``. ``also_known``: further names ``overrides`` may hold (another node's
+    parameters, taken by its caller); any other unknown name is refused."""
+    configs = [config] if isinstance(config, str) else list(config or [])
+    registration: dict[str, Any] = {}
+    occupancy: dict[str, Any] = {}
+    for path in configs:
+        registration.update(load_yaml_parameters(path, 'registration_node'))
+        occupancy.update(load_yaml_parameters(path, 'occupancy_node'))
     registration_names = {s.name for s in REGISTRATION_PARAMETERS}
     occupancy_names = {s.name for s in OCCUPANCY_PARAMETERS}
-    unknown = sorted(set(overrides) - registration_names - occupancy_names)
+    unknown = sorted(set(overrides) - registration_names - occupancy_names - set(also_known))
     if unknown:
         raise ParameterError([f"--set: unknown parameter '{name}'" for name in unknown])
     registration.update({k: v for k, v in overrides.items() if k in registration_names})

@@ -106,6 +106,13 @@ class GridSpec:
         """Map-frame centres (N, 3) of the cells with indices ``ijk`` (N, 3)."""
         return self.origin + (np.asarray(ijk, dtype=float) + 0.5) * self.resolution
 
+    def contains(self, points: ArrayLike) -> Bools:
+        """Which map-frame points (N, 3) fall in a cell of the grid."""
+        ijk = np.floor((np.asarray(points, dtype=float).reshape(-1, 3) - self.origin)
+                       / self.resolution)
+        inside: Bools = np.all((ijk >= 0) & (ijk < self.cells_per_axis), axis=1)
+        return inside
+
 
 @dataclass(frozen=True)
 class SensorModel:

@@ -94,6 +94,12 @@ class MapCells:
     frame_id: str = 'object'
     metadata: dict = field(default_factory=dict)
     problem: str | None = None  # a damaged bag: what stopped the reading early
+    colours: np.ndarray | None = None   # (n, 3) uint8 RGB from the camera, 0 where untextured
+    textured: np.ndarray | None = None  # (n,) bool: the camera saw the cell (None: no colours)
+
+    @property
+    def has_colours(self) -> bool:
+        return self.colours is not None and self.textured is not None
 
     def describe(self) -> str:
         which = 'every touched cell' if self.complete else 'only the cells it was saved with'
@@ -152,8 +158,13 @@ def _structured_cells(cells: np.ndarray, source: str, kind: str, complete: bool,
     lattice = infer_lattice(centres, resolution)
     hits = cells['hits'].astype(np.int64) if 'hits' in names else np.zeros(len(cells), np.int64)
     first = cells['first_touch'] if 'first_touch' in names else np.full(len(cells), np.nan)
+    colours = textured = None
+    if all(name in names for name in ('red', 'green', 'blue', 'textured')):
+        colours = np.stack([cells[c] for c in ('red', 'green', 'blue')], axis=1).astype(np.uint8)
+        textured = cells['textured'].astype(bool)
     return MapCells(centres, cells['intensity'].astype(np.float64), hits, _relative(first),
-                    lattice, kind, source, complete, frame_id)
+                    lattice, kind, source, complete, frame_id, colours=colours,
+                    textured=textured)
 
 
 def _read_ply(path: Path, resolution: float | None) -> MapCells:
@@ -176,7 +187,7 @@ def _is_truth_file(path: Path) -> bool:
 
 
 def _read_npz(path: Path) -> MapCells:
-    from inhand_mapping.map_io import load_npz
+    from inhand_mapping.map_io import load_colours, load_npz
     if _is_truth_file(path):
         raise ValueError(f'{path}: this is a ground-truth file, not a map: give it with '
                          '--truth')
@@ -185,9 +196,13 @@ def _read_npz(path: Path) -> MapCells:
     if len(centres) == 0:
         raise ValueError(f'{path}: the map has no touched cells')
     lattice = Lattice(grid.spec.resolution, tuple(float(v) for v in grid.spec.origin))
+    grid_colours = load_colours(path)
+    colours, textured = (None, None) if grid_colours is None else \
+        grid_colours.at(grid.spec, centres)
     return MapCells(centres, np.asarray(probabilities, dtype=float),
                     hits.astype(np.int64), _relative(first_touch), lattice, 'npz',
-                    str(path), True, metadata.get('frame_id', 'object'), metadata)
+                    str(path), True, metadata.get('frame_id', 'object'), metadata,
+                    colours=colours, textured=textured)
 
 
 def _read_bag_cloud(bag: Path, resolution: float | None) -> MapCells:

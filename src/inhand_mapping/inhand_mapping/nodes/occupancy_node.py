@@ -14,6 +14,11 @@ Services (std_srvs/Trigger): ``occupancy/reset`` clears the map; ``occupancy/sav
 writes ``<output_dir>/<map_name>.npz`` (whole grid) and ``.ply`` (occupied cells)
 atomically and answers with the paths.
 
+Subscribes ``occupancy/textured`` too (the stereo node's colours of the occupied cells,
+latched): a save colours the occupied cells with the latest of it (``red green blue
+textured`` in the PLYs, ``rgb``/``textured`` in the NPZ); cells occupied since it came are
+saved untextured.
+
 The map holds each finger's newest samples back until the next 1/15 s shows how fast the
 finger was moving (dwell.py). They are applied when the next points come, before a save,
 and when no points have come for two publish periods (the end of a replay, a pause), so
@@ -22,6 +27,7 @@ the map published after a stream ends holds all of it.
 
 from __future__ import annotations
 
+import numpy as np
 from geometry_msgs.msg import PointStamped
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -29,10 +35,12 @@ from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
 from inhand_common.node_runner import run_node
+from inhand_common.packed_rgb import colours_of_rgb
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
 from inhand_common.ros_names import MAP_FRAME
 from inhand_common.ros_parameters import declare_parameters
 from inhand_mapping.cloud_layouts import unpack_registered
+from inhand_mapping.map_io import GridColours
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, OccupancyConfig
 from inhand_mapping.qos import DATA_QOS, LATCHED_QOS
@@ -51,7 +59,9 @@ class OccupancyNode(Node):
         self._changed = False
         self._idle_ticks = 0   # publish periods since points last came
         self._latest_stamp = None
+        self._colours: GridColours | None = None   # the latest occupancy/textured, by cell
         self.create_subscription(PointCloud2, 'registration/points', self._on_points, POINTS_QOS)
+        self.create_subscription(PointCloud2, 'occupancy/textured', self._on_textured, MAP_QOS)
         self._cloud = self.create_publisher(PointCloud2, 'occupancy/cloud', MAP_QOS)
         self._occupied = self.create_publisher(PointCloud2, 'occupancy/occupied', MAP_QOS)
         self._com = self.create_publisher(PointStamped, 'occupancy/center_of_mass', MAP_QOS)
@@ -74,6 +84,18 @@ class OccupancyNode(Node):
             self._changed = True
         if len(times):
             self._latest_stamp = msg.header.stamp
+
+    def _on_textured(self, msg: PointCloud2) -> None:
+        cloud = from_point_cloud2(msg)
+        centres = np.stack([cloud['x'], cloud['y'], cloud['z']], axis=1).astype(np.float64)
+        inside = self.grid.spec.contains(centres)
+        if not inside.all():
+            self.get_logger().warning(
+                f'occupancy/textured: {int((~inside).sum())} of {len(centres)} cells outside '
+                'this map (another grid?); they are not saved')
+        self._colours = GridColours.from_cells(
+            self.grid.spec, centres[inside], colours_of_rgb(cloud['rgb'][inside]),
+            cloud['textured'][inside].astype(bool))
 
     def _publish(self) -> None:
         self._idle_ticks += 1
@@ -98,6 +120,7 @@ class OccupancyNode(Node):
 
     def _on_reset(self, _request, response):
         self.grid.reset()
+        self._colours = None
         self._changed = True
         response.success = True
         response.message = 'map cleared'
@@ -112,10 +135,15 @@ class OccupancyNode(Node):
 
     def _on_save(self, _request, response):
         self._apply_held()
+        colours = textured = None
+        if self._colours is not None:
+            centres = self.grid.cells(threshold=self.config.occupied_threshold)[0]
+            colours, textured = self._colours.at(self.grid.spec, centres)
         try:
             paths = save_map(self.grid, self.config.output_dir, self.config.map_name,
                              self.config.occupied_threshold, MAP_FRAME,
-                             extra={'node': self.get_fully_qualified_name()})
+                             extra={'node': self.get_fully_qualified_name()},
+                             colours=colours, textured=textured)
         except OSError as error:
             response.success = False
             response.message = f'could not save the map: {error}'

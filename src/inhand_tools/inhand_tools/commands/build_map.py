@@ -1,14 +1,19 @@
-"""``build_map``: the map the registration and occupancy nodes would build, from a bag.
+"""``build_map``: the map the mapping nodes would build, from a bag.
 
-    build_map BAG [--config config/mapping.yaml] [--output-dir maps] [--name NAME]
-                  [--set NAME=VALUE ...]
+    build_map BAG [--config config/mapping.yaml [--config config/stereo.yaml]]
+                  [--output-dir maps] [--name NAME] [--set NAME=VALUE ...]
 
 Reads a rosbag2 bag (MCAP or sqlite3) holding the driver's ``polhemus/<name>/pose``
 topics, runs the same registration and occupancy code with the same parameters (the
-``registration_node`` and ``occupancy_node`` sections of the YAML file, then ``--set``
-overrides), and writes ``<name>.npz`` and ``<name>.ply`` as ``occupancy/save`` would. No
-DDS involved. A truncated bag is reported with what could be read, and the map of that
-part is still written (exit code 1); a bag without the topics is refused (exit code 2).
+``registration_node`` and ``occupancy_node`` sections of the YAML files, later files
+overriding earlier ones, then ``--set`` overrides), and writes ``<name>.npz`` and
+``<name>.ply`` as ``occupancy/save`` would. When the bag also holds a stereo pair
+(``stereo/left|right/image_raw`` and their camera_info) and a ``stereo_node`` section sets
+``camera_pose`` (``config/stereo.yaml``), the occupied cells are coloured from the first
+usable pair as the stereo node colours them (``occupancy/textured``) and the files carry the
+colours. No DDS involved. A truncated bag is reported with what could be read, and the map
+of that part is still written (exit code 1); a bag without the topics is refused (exit
+code 2).
 """
 
 from __future__ import annotations
@@ -23,16 +28,40 @@ from inhand_common.ros_names import MAP_FRAME
 from inhand_mapping.bag_mapping import build_map_from_bag
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import load_parameters, parse_overrides
+from inhand_mapping.occupancy import OccupancyGrid
+from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
+from inhand_stereo.texture import CellTexture
+from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
 
 EXIT_TRUNCATED = 1
 EXIT_BAD_INPUT = 2
 
 
+def _texture(bag: Path, stereo: StereoConfig, grid: OccupancyGrid, threshold: float
+             ) -> tuple[CellTexture | None, str | None]:
+    """The occupied cells' colours from the bag's first usable stereo pair, as the stereo
+    node gives them, and a line saying so; (None, why) if there are none (why is None for
+    a bag without images). Refused pairs are reported on stderr."""
+    started = time.monotonic()
+    shot, why = read_bag_shot(bag, stereo)
+    if shot is None:
+        return None, None if why is None else f'  texture: none ({why})'
+    for line in shot.pairs.refused:
+        print(f'build_map: {line}', file=sys.stderr)
+    centres = grid.cells(threshold=threshold)[0]
+    texture = shot.texture(centres)
+    return texture, (f'  texture: {int(texture.textured.sum())} of {len(centres)} occupied '
+                     f'cells seen by the stereo pair at {shot.stamp:.3f} s '
+                     f'({time.monotonic() - started:.2f} s)')
+
+
 def main(argv=None) -> int:
     parser = command_parser('build_map', __doc__, epilog_from=2)
     parser.add_argument('bag', type=Path, help='bag folder, or .mcap / .db3 file')
-    parser.add_argument('--config', help='ROS parameter file with registration_node and '
-                        'occupancy_node sections (e.g. config/mapping.yaml)')
+    parser.add_argument('--config', action='append', default=[],
+                        help='ROS parameter file with registration_node and occupancy_node '
+                        '(and stereo_node) sections, e.g. config/mapping.yaml; repeatable, '
+                        'later files override earlier ones')
     parser.add_argument('--output-dir', type=Path, default=Path('maps'))
     parser.add_argument('--name', help='file name stem (default: the bag name)')
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
@@ -40,7 +69,11 @@ def main(argv=None) -> int:
     parser.add_argument('--quiet', action='store_true', help='no progress line')
     args = parser.parse_args(argv)
     try:
-        registration, occupancy = load_parameters(args.config, parse_overrides(args.set))
+        overrides = parse_overrides(args.set)
+        registration, occupancy = load_parameters(
+            args.config, overrides, also_known={spec.name for spec in STEREO_PARAMETERS})
+        stereo = stereo_config_for_map(args.config, registration, occupancy.grid.resolution,
+                                       overrides)
         if not args.bag.exists():
             raise ValueError(f'{args.bag}: no such bag')
         start = time.monotonic()
@@ -51,9 +84,12 @@ def main(argv=None) -> int:
     elapsed = time.monotonic() - start
     grid, registrar, report = result['grid'], result['registrar'], result['report']
     threshold = occupancy.occupied_threshold
+    texture, texture_note = _texture(args.bag, stereo, grid, threshold)
     name = args.name or args.bag.name.rsplit('.', 1)[0] or 'map'
     paths = save_map(grid, args.output_dir, name, threshold, MAP_FRAME,
-                     extra={'bag': str(args.bag), 'truncated': report['truncated']})
+                     extra={'bag': str(args.bag), 'truncated': report['truncated']},
+                     colours=None if texture is None else texture.colours,
+                     textured=None if texture is None else texture.textured)
     stats = registrar.stats
     span = ((report['bag_end'] or 0) - (report['bag_start'] or 0)) * 1e-9
     products = MapProducts(grid, threshold)
@@ -68,6 +104,8 @@ def main(argv=None) -> int:
     print(f'  map: {grid.counts.integrated} points integrated, {grid.counts.outside} outside '
           f'the workspace, {grid.counts.invalid} invalid; {len(touched)} cells touched, '
           f'{len(occupied)} above {threshold:g}')
+    if texture_note:
+        print(texture_note)
     if frame is not None:
         print('  centre of mass (object frame): '
               + ', '.join(f'{v:+.4f}' for v in frame.centre_of_mass) + ' m')

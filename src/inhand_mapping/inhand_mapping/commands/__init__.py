@@ -1,1 +1,0 @@
-"""Command-line tools: parse arguments, call the library, report."""

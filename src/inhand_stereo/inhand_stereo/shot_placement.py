@@ -1,0 +1,94 @@
+"""Stereo shots placed on the object: the map frame's pose at each shot's stamp.
+
+The images are taken in the tracker frame (through ``camera_pose``); the map frame
+``object`` rides on the object sensor, so a shot is usable once the object's pose at its
+stamp is known, by the fingertips' rules (:meth:`Registrar.object_pose_at`: exact stamp,
+interpolation across short gaps, never extrapolated). :class:`ShotPlacer` holds a shot
+until the object poses around its stamp have come; in static mode the map frame is the
+tracker frame and every shot is placed at once. The node and the bag tools share it.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from inhand_mapping.registration import Registrar
+from inhand_stereo.stereo_pipeline import StereoShot, pose_vector
+from inhand_stereo.texture import CellTexture
+
+__all__ = ['PlacedShot', 'ShotPlacer', 'UnplacedShot']
+
+MAX_HELD = 4   # shots waiting for object poses; an older one is given up when more come
+
+
+class PlacedShot(NamedTuple):
+    """A shot with the map frame's pose in the tracker frame at its stamp."""
+
+    shot: StereoShot
+    object_pose: NDArray[np.float64]     # (7,) x y z qx qy qz qw
+
+    def points_in_map(self, camera_pose: ArrayLike) -> NDArray[np.float32]:
+        """The shot's 3D points in the map frame (``camera_pose``: the left camera in the
+        tracker frame)."""
+        return self.shot.points_in_map(camera_pose, self.object_pose)
+
+    def texture(self, centres: ArrayLike, resolution: float, camera_pose: ArrayLike
+                ) -> CellTexture:
+        """Colours and textured mask of occupied cells (map-frame centres) from the shot."""
+        return self.shot.texture(centres, resolution, camera_pose, self.object_pose)
+
+
+class UnplacedShot(NamedTuple):
+    """A shot that cannot be placed, and why (for one log line)."""
+
+    shot: StereoShot
+    reason: str
+
+
+class ShotPlacer:
+    """Places shots with the object poses of a :class:`Registrar` (its mode and max_gap)."""
+
+    def __init__(self, registrar: Registrar):
+        self.registrar = registrar
+        self.held: list[StereoShot] = []
+
+    def add_object_pose(self, t: float, position: ArrayLike, quaternion: ArrayLike
+                        ) -> list[PlacedShot | UnplacedShot]:
+        """One object pose (seconds, m, x y z w); the held shots it decides."""
+        self.registrar.add_object_pose(t, position, quaternion)
+        return self._decide()
+
+    def add_shot(self, shot: StereoShot) -> list[PlacedShot | UnplacedShot]:
+        """A new shot; what is decided now (it, or an older one given up for it)."""
+        self.held.append(shot)
+        decided: list[PlacedShot | UnplacedShot] = []
+        while len(self.held) > MAX_HELD:
+            old = self.held.pop(0)
+            decided.append(UnplacedShot(old, 'no object pose came at or after its stamp'))
+        return decided + self._decide()
+
+    def finish(self) -> list[PlacedShot | UnplacedShot]:
+        """The input has ended: the held shots can no longer be placed."""
+        decided: list[PlacedShot | UnplacedShot] = [
+            UnplacedShot(shot, 'no object pose came at or after its stamp')
+            for shot in self.held]
+        self.held = []
+        return decided
+
+    def _decide(self) -> list[PlacedShot | UnplacedShot]:
+        decided: list[PlacedShot | UnplacedShot] = []
+        still: list[StereoShot] = []
+        for shot in self.held:
+            where = self.registrar.object_pose_at(shot.stamp_ns * 1e-9)
+            if where.state == 'later':
+                still.append(shot)
+            elif where.rotation is None or where.position is None:
+                decided.append(UnplacedShot(shot, f'no object pose at its stamp '
+                                                  f'({where.state.replace("_", " ")})'))
+            else:
+                decided.append(PlacedShot(shot, pose_vector(where.rotation, where.position)))
+        self.held = still
+        return decided

@@ -1,0 +1,82 @@
+"""The stereo shot of a session bag, placed as the map of that bag: for the offline tools.
+
+``build_map`` colours a bag's map with it, ``render_map`` draws its points and the coloured
+map (the paper's figs. 6-7) and ``map_metrics`` judges it against the truth. The rig's
+parameters come from the ``stereo_node`` sections of the same ROS parameter files the
+nodes get (``config/stereo.yaml``: the disparity settings and ``camera_pose``); where the
+shot is placed follows the map's registration (mode, object sensor, max_gap) and the
+texture its cells, so the three tools and the stereo node see the same thing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from inhand_common.bag_source import BagSource
+from inhand_mapping.mapping_config import RegistrationConfig
+from inhand_stereo.bag_stereo import BagStereo, has_stereo_pair, read_bag_stereo
+from inhand_stereo.shot_placement import PlacedShot
+from inhand_stereo.stereo_config import StereoConfig, load_stereo_config
+from inhand_stereo.texture import CellTexture
+
+__all__ = ['BagShot', 'bag_has_stereo_pair', 'read_bag_shot', 'stereo_config_for_map']
+
+
+def stereo_config_for_map(configs: Sequence[str], registration: RegistrationConfig,
+                          resolution: float, overrides: Mapping[str, Any] | None = None
+                          ) -> StereoConfig:
+    """The stereo node's parameters from ``configs``' ``stereo_node`` sections, placed as the
+    map is: the registration's mode, object sensor and max_gap, the grid's cell size."""
+    stereo = load_stereo_config(configs, overrides)
+    return replace(stereo, mode=registration.mode, object_name=registration.object_name,
+                   max_gap=registration.max_gap, resolution=resolution)
+
+
+def bag_has_stereo_pair(bag: Path) -> bool:
+    """Whether the bag holds the images of a stereo camera."""
+    with BagSource(Path(bag)) as source:
+        return has_stereo_pair(source.topics)
+
+
+@dataclass
+class BagShot:
+    """The first usable stereo shot of a bag with the configuration it was processed with,
+    and every pair's story (``pairs.refused``: one line per unusable pair)."""
+
+    placed: PlacedShot
+    config: StereoConfig
+    pairs: BagStereo
+
+    @property
+    def stamp(self) -> float:
+        """Seconds (the images' stamp)."""
+        return self.placed.shot.stamp_ns * 1e-9
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The shot's 3D points in the map frame (N, 3) float32 and their RGB (N, 3) uint8:
+        what ``stereo/points`` carries."""
+        return self.placed.points_in_map(self.config.camera_pose), self.placed.shot.colours
+
+    def texture(self, centres: np.ndarray) -> CellTexture:
+        """Colours of occupied cells (map-frame centres), as ``occupancy/textured``."""
+        return self.placed.texture(centres, self.config.resolution, self.config.camera_pose)
+
+
+def read_bag_shot(bag: Path, config: StereoConfig) -> tuple[BagShot | None, str | None]:
+    """(the bag's first usable shot, None) or (None, why there is none); why is None for a
+    bag without images (nothing to say)."""
+    if not bag_has_stereo_pair(bag):
+        return None, None
+    if not config.camera_pose_given:
+        return None, ('the bag holds a stereo pair, but no stereo_node camera_pose was given '
+                      '(e.g. --config config/stereo.yaml)')
+    pairs = read_bag_stereo(Path(bag), config)
+    if pairs.first is None:
+        reasons = '; '.join(pairs.refused) or 'no complete pair'
+        return None, f'no usable stereo pair ({reasons})'
+    return BagShot(pairs.first, config, pairs), None
