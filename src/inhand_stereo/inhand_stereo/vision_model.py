@@ -1,0 +1,259 @@
+"""The vision sensor model (paper III.C, eqs. 5-7) and the vision local map.
+
+Eq. 5 gives each cell crossed by a stereo ray a Gaussian belief over its occupancy value,
+``P(O_c | Z_vis) = N(mu, sigma)``, from the measured range ``d_j`` along the ray and the
+cell centre's range ``d_l`` on it (``delta = d_l - d_j``: negative in front of the measured
+surface, positive behind it):
+
+* eq. 6, the mean: 0 (free) for ``delta <= -epsilon/2``, ``1/2 + delta/epsilon`` inside the
+  band ``|delta| < epsilon/2``, 1 (occupied) behind it;
+* eq. 7, the spread: ``sigma_s(d_j) / epsilon`` inside the band, decaying as
+  ``exp(-(|delta| - epsilon/2) / tau)`` away from it (confident far from the surface);
+* ``sigma_s(d)``, the range noise of the stereo camera at range ``d``: the paper's linear
+  model ``sigma_min + zeta d`` (``noise='linear'``) or the stereo one, triangulation error
+  growing with the square of the range, ``sigma_min + zeta d^2`` (``noise='stereo'``;
+  ``zeta = sigma_disparity / (f B)`` in 1/m for a disparity noise in pixels, focal f in
+  pixels and baseline B in metres).
+
+From a belief over the occupancy value to a probability (the paper does not say), two
+readings, parameter ``update``:
+
+* ``'mass'`` (default): the probability that the cell is occupied is the belief's mass
+  above one half, ``P(O) = Phi((mu - 1/2) / sigma)``: a confident belief (small sigma) gives
+  a decisive probability, a vague one stays near 1/2;
+* ``'mean'``: the expected occupancy value under the belief truncated to [0, 1].
+
+Each observation of a cell becomes one log-odds update ``logit(P(O))``, clamped to
+``[logit(p_free), logit(p_occupied)]`` (one picture is one measurement: it must not make a
+cell certain on its own, as the touch model's clamping says for a touch).
+
+Touch maps describe the object's *surface*: the cells the surface passes through. Two
+choices make the vision map describe the same shell:
+
+* ``d_l`` is the range of the cell's *far side* on the ray (its centre's range plus half a
+  cell): the paper's centre range makes the cell whose centre lies on the surface exactly
+  half occupied (mu = 1/2, P(O) = 1/2 whatever sigma), so the cell the surface passes
+  through would hover around 1/2; measured to its far side, a cell the surface passes
+  through is partly behind it and leans occupied, the cell in front of it leans free.
+* Eq. 6 would fill the object's inside behind every seen surface (mu = 1 all the way
+  back). The update stops at the cell the surface passes through: cells whose centre is
+  more than ``behind`` (default half a cell) behind the measured surface stay unknown.
+
+In front of the surface the free space is carved the whole way to the camera (within the
+grid): that is what removes a touch map's strays in the air.
+
+One exposure updates every cell of the grid once, through the cell centre's ray (the
+projective form, as volumetric depth fusion does): each centre goes into the rectified left
+camera, the depth at its pixel gives ``d_j`` on the ray through the centre, and the cell gets
+the model at ``delta``. Cells outside the picture, behind the camera or on a pixel without
+depth are not updated (unknown). Vectorised over the grid; no Python loop per cell or ray.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, NamedTuple, TypeAlias
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.special import ndtr  # type: ignore[import-untyped]
+
+from inhand_common.array_types import Bools, Floats, Matrix3, Vector3
+from inhand_mapping.occupancy import GridSpec
+
+__all__ = ['NOISE_MODELS', 'UPDATES', 'VisionMap', 'VisionModel', 'VisionObservation',
+           'observe_grid']
+
+NoiseModel: TypeAlias = Literal['linear', 'stereo']
+Update: TypeAlias = Literal['mass', 'mean']
+NOISE_MODELS: tuple[NoiseModel, ...] = ('linear', 'stereo')
+UPDATES: tuple[Update, ...] = ('mass', 'mean')
+MIN_DEPTH = 1e-3      # m: cells closer to the camera's centre are not seen
+TINY_SIGMA = 1e-9     # occupancy-value units: below this a belief is a point mass
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1.0 - p))
+
+
+@dataclass(frozen=True)
+class VisionModel:
+    """Eqs. 5-7 with the band limit and the probability reading (module doc)."""
+
+    epsilon: float = 0.01          # m: width of the ramp of eq. 6
+    tau: float = 0.01              # m: decay of eq. 7's spread away from the band
+    sigma_min: float = 0.001       # m: range noise at the camera
+    zeta: float = 0.005            # 1/1 (linear) or 1/m (stereo): growth of the noise
+    noise: NoiseModel = 'linear'
+    update: Update = 'mass'
+    behind: float | None = None    # m (cell centre behind the surface) still updated; None:
+    #                                half a cell
+    p_free: float = 0.12           # the lowest probability one observation gives
+    p_occupied: float = 0.97       # the highest
+
+    def __post_init__(self) -> None:
+        problems = []
+        for name in ('epsilon', 'tau'):
+            if not getattr(self, name) > 0:
+                problems.append(f'{name} must be > 0 m, got {getattr(self, name)}')
+        if not (self.sigma_min >= 0 and self.zeta >= 0 and self.sigma_min + self.zeta > 0):
+            problems.append(f'sigma_min ({self.sigma_min}) and zeta ({self.zeta}) must be '
+                            '>= 0 and not both 0')
+        if self.noise not in NOISE_MODELS:
+            problems.append(f'noise must be one of {NOISE_MODELS}, got {self.noise!r}')
+        if self.update not in UPDATES:
+            problems.append(f'update must be one of {UPDATES}, got {self.update!r}')
+        if self.behind is not None and not self.behind >= 0:
+            problems.append(f'behind must be >= 0 m, got {self.behind}')
+        if not 0.0 < self.p_free < 0.5 < self.p_occupied < 1.0:
+            problems.append(f'need 0 < p_free ({self.p_free}) < 0.5 < p_occupied '
+                            f'({self.p_occupied}) < 1')
+        if problems:
+            raise ValueError('vision model: ' + '; '.join(problems))
+
+    def band_behind(self, resolution: float) -> float:
+        """Metres a cell centre may lie behind the measured surface and still be updated."""
+        return resolution / 2.0 if self.behind is None else self.behind
+
+    def sigma_s(self, d: ArrayLike) -> Floats:
+        """Range noise (m) of a measurement at range ``d`` (m)."""
+        d = np.asarray(d, dtype=np.float64)
+        growth = d if self.noise == 'linear' else d * d
+        sigma: Floats = self.sigma_min + self.zeta * growth
+        return sigma
+
+    def mu(self, delta: ArrayLike) -> Floats:
+        """Eq. 6: mean occupancy value at ``delta = d_l - d_j`` (m)."""
+        delta = np.asarray(delta, dtype=np.float64)
+        mu: Floats = np.clip(0.5 + delta / self.epsilon, 0.0, 1.0)
+        return mu
+
+    def sigma(self, delta: ArrayLike, d: ArrayLike) -> Floats:
+        """Eq. 7: spread of the occupancy value (its units) at ``delta``, measured range ``d``."""
+        delta = np.asarray(delta, dtype=np.float64)
+        base = self.sigma_s(d) / self.epsilon
+        outside = np.maximum(np.abs(delta) - self.epsilon / 2.0, 0.0)
+        sigma: Floats = base * np.exp(-outside / self.tau)
+        return sigma
+
+    def probability(self, delta: ArrayLike, d: ArrayLike) -> Floats:
+        """P(O) of a cell at ``delta`` from a measurement at range ``d``, by ``update``,
+        before the clamping to [p_free, p_occupied]."""
+        mu = self.mu(delta)
+        sigma = np.maximum(self.sigma(delta, d), TINY_SIGMA)
+        if self.update == 'mass':
+            p: Floats = ndtr((mu - 0.5) / sigma)
+            return p
+        return _truncated_normal_mean(mu, sigma)
+
+    def log_odds(self, delta: ArrayLike, d: ArrayLike) -> Floats:
+        """The clamped log-odds update of one observation."""
+        p = np.clip(self.probability(delta, d), self.p_free, self.p_occupied)
+        update: Floats = np.log(p / (1.0 - p))
+        return update
+
+
+def _truncated_normal_mean(mu: Floats, sigma: Floats) -> Floats:
+    """Mean of N(mu, sigma) truncated to [0, 1]."""
+    a, b = (0.0 - mu) / sigma, (1.0 - mu) / sigma
+    mass = np.maximum(ndtr(b) - ndtr(a), 1e-300)
+    pdf_a = np.exp(-0.5 * a * a) / math.sqrt(2.0 * math.pi)
+    pdf_b = np.exp(-0.5 * b * b) / math.sqrt(2.0 * math.pi)
+    mean: Floats = np.clip(mu + sigma * (pdf_a - pdf_b) / mass, 0.0, 1.0)
+    return mean
+
+
+class VisionObservation(NamedTuple):
+    """What one exposure says about the grid: the flat indices of the cells it updates
+    and their log-odds updates, with the ``delta`` (m) and measured range of each."""
+
+    cells: NDArray[np.intp]       # (M,) flat indices into the (n, n, n) grid
+    log_odds: Floats              # (M,)
+    delta: Floats                 # (M,) d_l - d_j, d_l to the cell's far side
+    range: Floats                 # (M,) d_j
+
+
+def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray[np.floating],
+                 P: ArrayLike, map_to_camera: tuple[Matrix3, Vector3], model: VisionModel
+                 ) -> VisionObservation:
+    """The cells (rows of ``centres``, map frame, cells of edge ``resolution``) one
+    exposure updates (module doc).
+
+    ``depth`` (H, W): z along the rectified left optical axis per pixel, NaN where there is
+    no measurement; ``P`` the rectified left camera's 3x4 projection; ``map_to_camera``
+    ``(M, b)`` with ``p_rectified = M p_map + b``."""
+    matrix, offset = map_to_camera
+    projection = np.asarray(P, dtype=np.float64).reshape(3, 4)
+    height, width = depth.shape
+    rectified = centres @ np.asarray(matrix, dtype=np.float64).T + np.asarray(offset)
+    w = rectified @ projection[2, :3] + projection[2, 3]
+    z = rectified[:, 2]
+    ahead = (z > MIN_DEPTH) & (w > 0.0)
+    safe_w = np.where(ahead, w, 1.0)
+    # Pixel centres are at integer coordinates (ROS): the nearest pixel's depth.
+    u = np.rint((rectified @ projection[0, :3] + projection[0, 3]) / safe_w)
+    v = np.rint((rectified @ projection[1, :3] + projection[1, 3]) / safe_w)
+    inside: Bools = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    candidates = np.flatnonzero(inside)
+    measured = np.asarray(depth, dtype=np.float64)[v[candidates].astype(np.intp),
+                                                   u[candidates].astype(np.intp)]
+    seen = np.isfinite(measured) & (measured > 0.0)
+    candidates, measured = candidates[seen], measured[seen]
+    # Ranges along the ray through the cell centre: the measured point on that ray is at
+    # z = measured, so its range is measured * |p| / z.
+    cell_range = np.linalg.norm(rectified[candidates], axis=1)
+    measured_range = measured * cell_range / z[candidates]
+    behind = cell_range - measured_range           # the centre's; > 0 behind the surface
+    keep = behind <= model.band_behind(resolution)
+    cells, measured_range = candidates[keep], measured_range[keep]
+    delta = behind[keep] + resolution / 2.0        # to the cell's far side
+    return VisionObservation(cells, model.log_odds(delta, measured_range), delta,
+                             measured_range)
+
+
+class VisionMap:
+    """The vision local map: log-odds per cell of a grid, prior 1/2, clamped like the touch
+    map; each exposure is integrated once (:meth:`integrate`)."""
+
+    def __init__(self, spec: GridSpec, model: VisionModel, clamp: tuple[float, float]):
+        if not 0.0 < clamp[0] < 0.5 < clamp[1] < 1.0:
+            raise ValueError(f'clamp must be (low, high) with 0 < low < 0.5 < high < 1, '
+                             f'got {clamp}')
+        self.spec, self.model = spec, model
+        self.clamp = (_logit(clamp[0]), _logit(clamp[1]))
+        self.log_odds: NDArray[np.float64] = np.zeros(spec.shape, dtype=np.float64)
+        self.exposures = 0
+        n = spec.cells_per_axis
+        ijk = np.indices((n, n, n)).reshape(3, -1).T
+        self.centres: NDArray[np.float64] = spec.cell_centres(ijk)
+
+    def observe(self, depth: NDArray[np.floating], P: ArrayLike,
+                map_to_camera: tuple[Matrix3, Vector3]) -> VisionObservation:
+        """The exposure's updates, without applying them."""
+        return observe_grid(self.centres, self.spec.resolution, depth, P, map_to_camera,
+                            self.model)
+
+    def integrate(self, depth: NDArray[np.floating], P: ArrayLike,
+                  map_to_camera: tuple[Matrix3, Vector3]) -> VisionObservation:
+        """Apply one exposure; returns what it updated."""
+        observation = self.observe(depth, P, map_to_camera)
+        flat = self.log_odds.reshape(-1)
+        flat[observation.cells] = np.clip(flat[observation.cells] + observation.log_odds,
+                                          *self.clamp)
+        self.exposures += 1
+        return observation
+
+    def reset(self) -> None:
+        self.log_odds.fill(0.0)
+        self.exposures = 0
+
+    def probabilities(self) -> NDArray[np.float64]:
+        """Occupancy probability of every cell (1/2 where vision says nothing)."""
+        p: NDArray[np.float64] = 1.0 / (1.0 + np.exp(-self.log_odds))
+        return p
+
+    def observed_mask(self) -> Bools:
+        """Cells any exposure updated."""
+        observed: Bools = self.log_odds != 0.0
+        return observed
