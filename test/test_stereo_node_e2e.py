@@ -8,11 +8,12 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 
 from conftest import WORKSPACE
 from inhand_common.ground_truth import load_truth
 from inhand_common.point_cloud import from_point_cloud2
-from inhand_mapping.map_io import read_ply
+from inhand_mapping.map_io import load_local_maps, load_npz, read_ply
 from inhand_tools.launching import ProcessGroup, mapping_graph
 from ros_helpers import BackgroundNode, call_trigger, executable_path
 
@@ -46,28 +47,48 @@ class LatchedListener(BackgroundNode):
             raise AssertionError(f'only {sorted(self.latest)} arrived')
 
 
-@pytest.mark.parametrize('bag, config', [('cat_static', 'mapping_static.yaml'),
-                                         ('cat_moving', 'mapping.yaml')])
-def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config):
+def _with_fusion(tmp_path, config: str, fusion: str) -> str:
+    """The shipped mapping file with the occupancy node's ``fusion`` set."""
+    document = yaml.safe_load((WORKSPACE / 'config' / config).read_text())
+    section = next(value for key, value in document.items() if key.endswith('occupancy_node'))
+    section['ros__parameters']['fusion'] = fusion
+    path = tmp_path / f'{fusion}_{config}'
+    path.write_text(yaml.safe_dump(document))
+    return str(path)
+
+
+@pytest.mark.parametrize('bag, config, fusion', [('cat_static', 'mapping_static.yaml', 'none'),
+                                                 ('cat_moving', 'mapping.yaml', 'product')])
+def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config, fusion):
     from sensor_msgs.msg import PointCloud2
     from stereo_msgs.msg import DisparityImage
+    config = _with_fusion(tmp_path, config, fusion)
     truth = load_truth(WORKSPACE / 'bags' / f'{bag}.truth.npz')
     topics = [('occupancy/occupied', PointCloud2), ('occupancy/textured', PointCloud2),
               ('stereo/points', PointCloud2), ('stereo/disparity', DisparityImage)]
+    if fusion != 'none':
+        topics.append(('vision/cloud', PointCloud2))
     listener = LatchedListener(topics)
     try:
         with ProcessGroup() as group:
-            mapping_graph(group, str(WORKSPACE / 'config' / config), str(tmp_path), bag,
+            mapping_graph(group, config, str(tmp_path), bag,
                           stereo_config=str(WORKSPACE / 'config' / 'stereo.yaml'))
             assert group.run('replay', ['bag_replay', str(WORKSPACE / 'bags' / bag), '--fast',
                                         '--quiet']) == 0
 
             def complete(latest):
-                # the textured map of the final occupied map (the latched ones of the end)
+                # the textured map of the final occupied map (the latched ones of the end;
+                # with fusion, of the map fused with the vision map)
                 return (all(topic in latest for topic, _ in topics)
                         and latest['occupancy/textured'].width
                         == latest['occupancy/occupied'].width > 600)
             latest = listener.wait_for(complete)
+            while True:       # until the graph is quiet: the map and its texture settled
+                time.sleep(1.5)
+                settled = listener.wait_for(complete)
+                if all(settled[topic] is latest[topic] for topic, _ in topics):
+                    break
+                latest = settled
             assert call_trigger('occupancy/save').success
     finally:
         listener.close()
@@ -95,9 +116,10 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config):
     rgb = textured['rgb'].view(np.uint32)
     assert np.all(rgb[~seen] == 0) and np.all(rgb[seen] != 0)
 
-    # The saved map carries the colours, and they are build_map's of the same bag and files.
+    # The saved map carries the colours, and it is build_map's of the same bag and files,
+    # fused with the vision map when fusion is on.
     offline = subprocess.run([executable_path('build_map'), str(WORKSPACE / 'bags' / bag),
-                              '--config', str(WORKSPACE / 'config' / config), '--config',
+                              '--config', config, '--config',
                               str(WORKSPACE / 'config' / 'stereo.yaml'), '--output-dir',
                               str(tmp_path / 'offline'), '--quiet'],
                              capture_output=True, text=True, timeout=120)
@@ -106,8 +128,21 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config):
     saved, built = (read_ply(folder / f'{bag}.ply')
                     for folder in (tmp_path, tmp_path / 'offline'))
     assert np.array_equal(saved['textured'], seen.astype(np.uint8))
-    for field in ('x', 'y', 'z', 'red', 'green', 'blue', 'textured'):
+    for field in ('x', 'y', 'z', 'intensity', 'red', 'green', 'blue', 'textured'):
         assert np.array_equal(saved[field], built[field]), field
+    saved_grid, _ = load_npz(tmp_path / f'{bag}.npz')
+    built_grid, _ = load_npz(tmp_path / 'offline' / f'{bag}.npz')
+    assert np.array_equal(saved_grid.log_odds, built_grid.log_odds)
+    saved_local = load_local_maps(tmp_path / f'{bag}.npz')
+    built_local = load_local_maps(tmp_path / 'offline' / f'{bag}.npz')
+    assert sorted(saved_local) == sorted(built_local) == \
+        ([] if fusion == 'none' else ['touch', 'vision'])
+    for name in saved_local:
+        assert np.array_equal(saved_local[name], built_local[name]), name
+    if fusion != 'none':
+        # the vision map saw one side of the cat: some cells occupied, many free
+        vision = saved_local['vision']
+        assert (vision > 0).sum() > 100 and (vision < 0).sum() > 1000
 
 
 class PairPublisher(BackgroundNode):

@@ -11,6 +11,12 @@
 * ``occupancy/textured``: one point per occupied cell, ``x y z intensity`` as above, ``rgb``
   (float32 holding packed 0x00RRGGBB, the PCL/RViz convention, 0 where not textured) and
   ``textured`` (uint8: 1 where the camera saw the cell's surface), padded to 24 bytes.
+* ``vision/cloud`` (and ``occupancy/touch/cloud``, the touch local map, in the
+  ``occupancy/cloud`` layout): the vision local map, one point per cell a stereo exposure
+  updated, ``x y z intensity`` (its probability) and ``log_odds`` (float32). The occupancy
+  node rebuilds the vision grid from ``log_odds`` (:func:`vision_log_odds`), and
+  ``build_map`` passes its vision map through the same layout, so both fuse the same
+  float32 values.
 """
 
 from __future__ import annotations
@@ -21,17 +27,20 @@ import numpy as np
 
 from inhand_common.packed_rgb import rgb_of_colours
 from inhand_mapping import occupancy_kernels as kernels
-from inhand_mapping.occupancy import OccupancyGrid
+from inhand_mapping.occupancy import GridSpec, OccupancyGrid
 
 __all__ = [
     'MAP_CELL_DTYPE',
     'REGISTERED_DTYPE',
     'TEXTURED_CELL_DTYPE',
+    'VISION_CELL_DTYPE',
     'MapClouds',
     'map_cells',
     'pack_registered',
     'textured_cells',
     'unpack_registered',
+    'vision_cells',
+    'vision_log_odds',
 ]
 
 REGISTERED_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'finger', 't'],
@@ -44,6 +53,9 @@ MAP_CELL_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity
 TEXTURED_CELL_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'intensity', 'rgb', 'textured'],
                                 'formats': ['<f4', '<f4', '<f4', '<f4', '<f4', 'u1'],
                                 'offsets': [0, 4, 8, 12, 16, 20], 'itemsize': 24})
+
+VISION_CELL_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity', '<f4'),
+                              ('log_odds', '<f4')])
 
 
 def pack_registered(points, times, fingers) -> np.ndarray:
@@ -112,3 +124,29 @@ def textured_cells(cells: np.ndarray, colours, textured) -> np.ndarray:
     points['rgb'] = rgb_of_colours(np.where(seen[:, None], colours, 0))
     points['textured'] = seen
     return points
+
+
+def vision_cells(spec: GridSpec, log_odds: np.ndarray) -> np.ndarray:
+    """The ``vision/cloud`` points (VISION_CELL_DTYPE) of a vision map's log-odds grid
+    (prior 1/2 = 0): every cell an exposure updated."""
+    observed = log_odds != 0.0
+    ijk = np.argwhere(observed)
+    centres = spec.cell_centres(ijk)
+    values = log_odds[observed].astype(np.float32)
+    points = np.empty(len(ijk), dtype=VISION_CELL_DTYPE)
+    for axis, name in enumerate('xyz'):
+        points[name] = centres[:, axis]
+    points['log_odds'] = values
+    points['intensity'] = 1.0 / (1.0 + np.exp(-values.astype(np.float64)))
+    return points
+
+
+def vision_log_odds(cells: np.ndarray, spec: GridSpec) -> tuple[np.ndarray, int]:
+    """The vision map's log-odds grid (float64, 0 where unobserved) from ``vision/cloud``
+    points, and how many of them fell outside ``spec`` (another grid: dropped)."""
+    grid = np.zeros(spec.shape, dtype=np.float64)
+    centres = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(np.float64)
+    inside = spec.contains(centres)
+    ijk = np.floor((centres[inside] - spec.origin) / spec.resolution).astype(np.intp)
+    grid[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = cells['log_odds'][inside].astype(np.float64)
+    return grid, int(np.count_nonzero(~inside))

@@ -22,6 +22,11 @@ map without it is written exactly as before:
   colour) and ``textured`` (uchar, 1 where the camera saw the cell; colour 0 elsewhere)
   after the other properties.
 
+With fusion (``fusion.py``) the grid saved is the global map, and the NPZ also keeps the
+local maps it was fused from: ``local_touch`` and ``local_vision`` (log-odds grids, the touch
+map with the grid's prior, the vision map with 1/2), read by ``load_local_maps``; again an
+optional addition of format 2.
+
 Both are written atomically (temporary file, then rename).
 """
 
@@ -41,8 +46,17 @@ from inhand_common.array_types import Bools, Records
 from inhand_common.atomic_file import atomic_write
 from inhand_mapping.occupancy import GridSpec, IntegrationCounts, OccupancyGrid, SensorModel
 
-__all__ = ['FORMAT_VERSION', 'GridColours', 'load_colours', 'load_npz', 'read_ply', 'save_npz',
-           'save_ply']
+__all__ = [
+    'FORMAT_VERSION',
+    'LOCAL_MAPS',
+    'GridColours',
+    'load_colours',
+    'load_local_maps',
+    'load_npz',
+    'read_ply',
+    'save_npz',
+    'save_ply',
+]
 
 FilePath: TypeAlias = str | os.PathLike[str]
 
@@ -51,6 +65,7 @@ SENSOR_MODEL_FIELDS = tuple(f.name for f in fields(SensorModel))
 # Version 1 maps were built with every sample a full measurement and eq. 3 at cell centres.
 VERSION_1_MODEL = {'distance_to': 'centre', 'evidence_rate': 0.0, 'visit_gap': 0.0}
 Colours: TypeAlias = NDArray[np.uint8]     # (M, 3) RGB per cell
+LOCAL_MAPS = ('touch', 'vision')            # the local maps an NPZ may keep beside the global
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,13 +132,19 @@ def _cell_colours(colours: ArrayLike, textured: ArrayLike, count: int
 
 
 def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
-             extra: dict[str, Any] | None = None, colours: GridColours | None = None) -> Path:
+             extra: dict[str, Any] | None = None, colours: GridColours | None = None,
+             local_maps: dict[str, NDArray[np.float64]] | None = None) -> Path:
     """The grid, its model and metadata (module doc); ``colours`` adds the ``rgb`` and
-    ``textured`` arrays."""
+    ``textured`` arrays, ``local_maps`` (names from LOCAL_MAPS -> log-odds grids) the local
+    maps the grid was fused from."""
     spec, model = grid.spec, grid.model
     if colours is not None and colours.textured.shape != spec.shape:
         raise ValueError(f'grid colours of shape {colours.textured.shape} for a grid of '
                          f'{spec.shape}')
+    for name, local in (local_maps or {}).items():
+        if name not in LOCAL_MAPS or local.shape != spec.shape:
+            raise ValueError(f'local map {name!r} of shape {local.shape}: expected one of '
+                             f'{LOCAL_MAPS} of shape {spec.shape}')
     metadata = {
         'format_version': FORMAT_VERSION, 'frame_id': frame_id,
         'size': spec.size, 'resolution': spec.resolution, 'centre': list(spec.centre),
@@ -133,14 +154,14 @@ def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
     }
     encoded = np.frombuffer(json.dumps(metadata).encode(), dtype=np.uint8)
     target = Path(path)
+    arrays: dict[str, NDArray[Any]] = {'log_odds': grid.log_odds, 'hits': grid.hits,
+                                       'first_touch': grid.first_touch, 'metadata': encoded}
+    if colours is not None:
+        arrays.update(rgb=colours.rgb, textured=colours.textured)
+    for name, local in (local_maps or {}).items():
+        arrays[f'local_{name}'] = local
     with atomic_write(target) as stream:
-        if colours is None:
-            np.savez_compressed(stream, log_odds=grid.log_odds, hits=grid.hits,
-                                first_touch=grid.first_touch, metadata=encoded)
-        else:
-            np.savez_compressed(stream, log_odds=grid.log_odds, hits=grid.hits,
-                                first_touch=grid.first_touch, metadata=encoded,
-                                rgb=colours.rgb, textured=colours.textured)
+        np.savez_compressed(stream, **arrays)  # type: ignore[arg-type]
     return target
 
 
@@ -174,6 +195,24 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
     grid.refresh()
     grid.counts = IntegrationCounts(**metadata['counts'])
     return grid, metadata
+
+
+def load_local_maps(path: FilePath) -> dict[str, NDArray[np.float64]]:
+    """The local maps saved beside the global one (LOCAL_MAPS names -> log-odds grids);
+    empty for a map saved without fusion. ValueError if it is not a map."""
+    grid, _ = load_npz(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            local = {name: np.asarray(data[f'local_{name}'], dtype=np.float64)
+                     for name in LOCAL_MAPS if f'local_{name}' in data.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as error:
+        raise ValueError(f'{path}: its local maps cannot be read '
+                         f'({type(error).__name__}: {error})') from None
+    for name, values in local.items():
+        if values.shape != grid.spec.shape:
+            raise ValueError(f'{path}: local map {name} of shape {values.shape} for a grid '
+                             f'of {grid.spec.shape}')
+    return local
 
 
 def load_colours(path: FilePath) -> GridColours | None:

@@ -38,7 +38,7 @@ class MapProducts:
 
 def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
              frame_id: str = 'object', extra: dict | None = None, colours=None,
-             textured=None) -> tuple[Path, ...]:
+             textured=None, local_maps: dict | None = None) -> tuple[Path, ...]:
     """``<folder>/<name>.npz`` (the whole grid), ``<name>.ply`` (occupied cells) and, when
     there are occupied cells, ``<name>_object_centric.ply`` (the same cells in
     ``object_centric``: origin at the centre of mass), each written atomically.
@@ -63,7 +63,7 @@ def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
     cell_colours = None if colours is None else \
         GridColours.from_cells(grid.spec, centres, colours, textured)
     npz = save_npz(grid, folder / f'{name}.npz', frame_id=frame_id, extra=info,
-                   colours=cell_colours)
+                   colours=cell_colours, local_maps=local_maps)
     ply = save_ply(folder / f'{name}.ply', centres, probabilities, hits, first_touch,
                    frame_id=frame_id, colours=colours, textured=textured)
     if frame is None:

@@ -7,6 +7,7 @@ map the nodes would have built.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +17,7 @@ import yaml
 
 from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
 from inhand_common.ros_names import DEFAULT_OBJECT_STATION, station_pose_topic
+from inhand_mapping.fusion import FUSIONS
 from inhand_mapping.occupancy import DISTANCES, GridSpec, OccupancyGrid, SensorModel
 from inhand_mapping.registration import Registrar
 
@@ -70,6 +72,12 @@ OCCUPANCY_PARAMETERS = (
               '(occupancy/occupied, centre of mass, PLY)', minimum=0.5, maximum=0.999),
     ParamSpec('publish_rate', 2.0, 'Map publications per second (only when it changed)',
               minimum=0.01, maximum=100.0),
+    ParamSpec('fusion', 'none', 'Global map from the local maps (fusion.py): none (touch '
+              'only), product (eq. 9) or entropy (eqs. 10-12) with the vision map of '
+              'vision/cloud', choices=FUSIONS),
+    ParamSpec('entropy_radius', 0, 'entropy fusion: 0 weighs each sensor by its whole map\'s '
+              'entropy (the paper); r > 0 by the entropy of the (2r+1)^3 cells around each '
+              'cell', minimum=0, maximum=10),
     ParamSpec('output_dir', 'maps', 'Folder occupancy/save writes <map_name>.npz and .ply to'),
     ParamSpec('map_name', 'map', 'File name stem of saved maps'),
 )
@@ -132,6 +140,8 @@ class OccupancyConfig:
     publish_rate: float             # Hz
     output_dir: Path
     map_name: str
+    fusion: str = 'none'
+    entropy_radius: int = 0
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any]) -> OccupancyConfig:
@@ -159,7 +169,14 @@ class OccupancyConfig:
         return cls(grid=grid, model=model,
                    occupied_threshold=float(values['occupied_threshold']),
                    publish_rate=float(values['publish_rate']),
-                   output_dir=Path(values['output_dir']), map_name=values['map_name'])
+                   output_dir=Path(values['output_dir']), map_name=values['map_name'],
+                   fusion=values['fusion'], entropy_radius=int(values['entropy_radius']))
+
+    @property
+    def log_odds_clamp(self) -> tuple[float, float]:
+        """The clamps in log-odds (fusion clamps the global map like the touch map)."""
+        low, high = self.model.clamp_min, self.model.clamp_max
+        return math.log(low / (1 - low)), math.log(high / (1 - high))
 
     def make_grid(self) -> OccupancyGrid:
         return OccupancyGrid(self.grid, self.model)

@@ -301,6 +301,18 @@ class OccupancyGrid:
         view.flags.writeable = False
         return view
 
+    def show(self, log_odds: ArrayLike, source: OccupancyGrid) -> None:
+        """Become a view of another map of the same grid: ``log_odds`` (a global map fused
+        from ``source`` and another sensor) with ``source``'s hit counts and first touches,
+        copied in place (the kernels keep their views of these arrays)."""
+        if source.spec != self.spec:
+            raise ValueError(f'grids differ: {source.spec} and {self.spec}')
+        self.log_odds[...] = log_odds
+        self.hits[...] = source.hits
+        self.first_touch[...] = source.first_touch
+        self.counts = source.counts
+        self.refresh()
+
     def refresh(self) -> None:
         """Recompute what is derived from the arrays after they were set directly (loading)."""
         self._probability[...] = probability(self.log_odds)

@@ -15,9 +15,17 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from inhand_common.array_types import Matrix3, Vector3
 from inhand_mapping.registration import Registrar
+from inhand_stereo.scene_segmentation import (
+    DEFAULT_SEGMENTATION,
+    Segmentation,
+    SegmentationConfig,
+    segment_object,
+)
 from inhand_stereo.stereo_pipeline import StereoShot, pose_vector
-from inhand_stereo.texture import CellTexture
+from inhand_stereo.texture import CellTexture, map_to_rectified
+from inhand_stereo.vision_model import VisionMap, VisionObservation
 
 __all__ = ['PlacedShot', 'ShotPlacer', 'UnplacedShot']
 
@@ -39,6 +47,37 @@ class PlacedShot(NamedTuple):
                 ) -> CellTexture:
         """Colours and textured mask of occupied cells (map-frame centres) from the shot."""
         return self.shot.texture(centres, resolution, camera_pose, self.object_pose)
+
+    def map_to_camera(self, camera_pose: ArrayLike) -> tuple[Matrix3, Vector3]:
+        """``(M, b)`` with ``p_rectified = M p_map + b`` (the rectified left camera)."""
+        camera = np.asarray(camera_pose, dtype=np.float64).reshape(7)
+        return map_to_rectified((camera[:3], camera[3:]),
+                                (self.object_pose[:3], self.object_pose[3:]),
+                                self.shot.rectifier.R_left)
+
+    def pixel_points_in_map(self, camera_pose: ArrayLike) -> NDArray[np.float64]:
+        """(H * W, 3) the measured point of every pixel of the rectified left image in the
+        map frame, row-major; NaN where there is no depth."""
+        depth = self.shot.depth.astype(np.float64)
+        height, width = depth.shape
+        P = self.shot.left_camera.P
+        v, u = np.mgrid[0:height, 0:width]
+        rectified = np.stack([(u - P[0, 2]) * depth / P[0, 0], (v - P[1, 2]) * depth / P[1, 1],
+                              depth], axis=-1).reshape(-1, 3)
+        matrix, offset = self.map_to_camera(camera_pose)
+        points: NDArray[np.float64] = (rectified - offset) @ matrix   # M is a rotation
+        return points
+
+    def integrate_into(self, vision: VisionMap, camera_pose: ArrayLike,
+                       config: SegmentationConfig = DEFAULT_SEGMENTATION
+                       ) -> tuple[VisionObservation, Segmentation]:
+        """Add this shot to the vision local map, once: its object's pixels with the whole
+        model, the others (table, backdrop: scene_segmentation.py) as free space only."""
+        segmentation = segment_object(self.pixel_points_in_map(camera_pose), vision.spec,
+                                      config)
+        depth = self.shot.depth
+        return (vision.integrate(depth, self.shot.left_camera.P, self.map_to_camera(camera_pose),
+                                 segmentation.keep.reshape(depth.shape)), segmentation)
 
 
 class UnplacedShot(NamedTuple):

@@ -18,7 +18,10 @@ from numpy.typing import NDArray
 
 from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS
+from inhand_mapping.occupancy import GridSpec
 from inhand_stereo.disparity import DISPARITY_PARAMETERS, DisparityConfig
+from inhand_stereo.scene_segmentation import SegmentationConfig
+from inhand_stereo.vision_model import NOISE_MODELS, UPDATES, VisionModel
 
 __all__ = ['IDENTITY_POSE', 'STEREO_NODE', 'STEREO_PARAMETERS', 'StereoConfig',
            'camera_pose_from', 'load_stereo_config']
@@ -42,8 +45,27 @@ STEREO_PARAMETERS: tuple[ParamSpec, ...] = (
               minimum=-10.0, maximum=10.0, length=7),
     ParamSpec('point_step', 2, 'stereo/points takes every point_step-th pixel in each '
               'direction (1: all)', minimum=1, maximum=16),
+    # The vision sensor model (paper eqs. 5-7; vision_model.py) and the vision local map.
+    ParamSpec('vision_epsilon', 0.01, 'Width (m) of the ramp of eq. 6 from free to occupied '
+              'around the measured surface', minimum=0.0005, maximum=0.2),
+    ParamSpec('vision_tau', 0.005, 'Decay length (m) of eq. 7\'s spread away from the band',
+              minimum=0.0001, maximum=0.2),
+    ParamSpec('vision_sigma_min', 0.0, 'Range noise (m) of the stereo camera at range 0',
+              minimum=0.0, maximum=0.05),
+    ParamSpec('vision_zeta', 0.0027, 'Growth of the range noise with range: m per m '
+              '(linear) or 1/m (stereo: sigma_min + zeta d^2)', minimum=0.0, maximum=1.0),
+    ParamSpec('vision_noise', 'linear', 'Range noise model: linear (the paper: sigma_min + '
+              'zeta d) or stereo (sigma_min + zeta d^2)', choices=NOISE_MODELS),
+    ParamSpec('vision_update', 'mass', 'A belief over the occupancy value as a probability: '
+              'mass (its mass above 1/2) or mean (its mean on [0, 1])', choices=UPDATES),
+    ParamSpec('plane_tolerance', 0.004, 'Points within this distance (m) of a support plane '
+              '(the table) lie on it and are not the object', minimum=0.0005, maximum=0.05),
+    ParamSpec('support_fraction', 0.2, 'A plane holding this share of the workspace\'s '
+              'points, with the rest on one side, is a support and is removed',
+              minimum=0.01, maximum=1.0),
     *_shared(REGISTRATION_PARAMETERS, 'mode', 'object_name', 'max_gap'),
-    *_shared(OCCUPANCY_PARAMETERS, 'resolution'),
+    *_shared(OCCUPANCY_PARAMETERS, 'workspace_size', 'resolution', 'workspace_centre',
+             'clamp_min', 'clamp_max'),
 )
 
 
@@ -68,20 +90,43 @@ class StereoConfig:
     mode: str
     object_name: str
     max_gap: float
-    resolution: float
+    grid: GridSpec                       # the occupancy grid (the vision map's too)
+    vision: VisionModel
+    clamp: tuple[float, float]           # the maps' probability clamps
+    segmentation: SegmentationConfig
     camera_pose_given: bool = True       # False: no file set camera_pose (no calibration)
+
+    @property
+    def resolution(self) -> float:
+        return self.grid.resolution
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any], camera_pose_given: bool = True
                         ) -> StereoConfig:
         """From the validated table (``validate(STEREO_PARAMETERS, ...)`` or the node's
         declared values). ParameterError for a camera_pose without a rotation."""
+        try:
+            grid = GridSpec(float(values['workspace_size']), float(values['resolution']),
+                            tuple(float(v) for v in values['workspace_centre']))
+            vision = VisionModel(epsilon=float(values['vision_epsilon']),
+                                 tau=float(values['vision_tau']),
+                                 sigma_min=float(values['vision_sigma_min']),
+                                 zeta=float(values['vision_zeta']),
+                                 noise=values['vision_noise'], update=values['vision_update'],
+                                 p_free=float(values['clamp_min']),
+                                 p_occupied=float(values['clamp_max']))
+        except ValueError as error:
+            raise ParameterError([f'stereo_node parameters: {error}']) from None
         return cls(disparity=DisparityConfig.from_parameters(
                        {spec.name: values[spec.name] for spec in DISPARITY_PARAMETERS}),
                    camera_pose=camera_pose_from(values['camera_pose']),
                    point_step=int(values['point_step']), mode=str(values['mode']),
                    object_name=str(values['object_name']), max_gap=float(values['max_gap']),
-                   resolution=float(values['resolution']),
+                   grid=grid, vision=vision,
+                   clamp=(float(values['clamp_min']), float(values['clamp_max'])),
+                   segmentation=SegmentationConfig(
+                       plane_tolerance=float(values['plane_tolerance']),
+                       support_fraction=float(values['support_fraction'])),
                    camera_pose_given=camera_pose_given)
 
 

@@ -175,14 +175,16 @@ class VisionObservation(NamedTuple):
 
 
 def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray[np.floating],
-                 P: ArrayLike, map_to_camera: tuple[Matrix3, Vector3], model: VisionModel
-                 ) -> VisionObservation:
+                 P: ArrayLike, map_to_camera: tuple[Matrix3, Vector3], model: VisionModel,
+                 object_mask: Bools | None = None) -> VisionObservation:
     """The cells (rows of ``centres``, map frame, cells of edge ``resolution``) one
     exposure updates (module doc).
 
     ``depth`` (H, W): z along the rectified left optical axis per pixel, NaN where there is
     no measurement; ``P`` the rectified left camera's 3x4 projection; ``map_to_camera``
-    ``(M, b)`` with ``p_rectified = M p_map + b``."""
+    ``(M, b)`` with ``p_rectified = M p_map + b``. ``object_mask`` (H, W): the object's
+    pixels; elsewhere (the table, the backdrop) a measurement only says that the space in
+    front of it is free (cells with mu = 0), its own surface is not the object's."""
     matrix, offset = map_to_camera
     projection = np.asarray(P, dtype=np.float64).reshape(3, 4)
     height, width = depth.shape
@@ -196,18 +198,22 @@ def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray
     v = np.rint((rectified @ projection[1, :3] + projection[1, 3]) / safe_w)
     inside: Bools = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
     candidates = np.flatnonzero(inside)
-    measured = np.asarray(depth, dtype=np.float64)[v[candidates].astype(np.intp),
-                                                   u[candidates].astype(np.intp)]
+    rows, columns = v[candidates].astype(np.intp), u[candidates].astype(np.intp)
+    measured = np.asarray(depth, dtype=np.float64)[rows, columns]
     seen = np.isfinite(measured) & (measured > 0.0)
-    candidates, measured = candidates[seen], measured[seen]
+    on_object = (np.ones(len(candidates), dtype=bool) if object_mask is None
+                 else np.asarray(object_mask, dtype=bool)[rows, columns])
+    candidates, measured, on_object = candidates[seen], measured[seen], on_object[seen]
     # Ranges along the ray through the cell centre: the measured point on that ray is at
     # z = measured, so its range is measured * |p| / z.
     cell_range = np.linalg.norm(rectified[candidates], axis=1)
     measured_range = measured * cell_range / z[candidates]
     behind = cell_range - measured_range           # the centre's; > 0 behind the surface
-    keep = behind <= model.band_behind(resolution)
+    far_side = behind + resolution / 2.0
+    keep = np.where(on_object, behind <= model.band_behind(resolution),
+                    far_side <= -model.epsilon / 2.0)
     cells, measured_range = candidates[keep], measured_range[keep]
-    delta = behind[keep] + resolution / 2.0        # to the cell's far side
+    delta = far_side[keep]
     return VisionObservation(cells, model.log_odds(delta, measured_range), delta,
                              measured_range)
 
@@ -229,15 +235,17 @@ class VisionMap:
         self.centres: NDArray[np.float64] = spec.cell_centres(ijk)
 
     def observe(self, depth: NDArray[np.floating], P: ArrayLike,
-                map_to_camera: tuple[Matrix3, Vector3]) -> VisionObservation:
-        """The exposure's updates, without applying them."""
+                map_to_camera: tuple[Matrix3, Vector3], object_mask: Bools | None = None
+                ) -> VisionObservation:
+        """The exposure's updates, without applying them (:func:`observe_grid`)."""
         return observe_grid(self.centres, self.spec.resolution, depth, P, map_to_camera,
-                            self.model)
+                            self.model, object_mask)
 
     def integrate(self, depth: NDArray[np.floating], P: ArrayLike,
-                  map_to_camera: tuple[Matrix3, Vector3]) -> VisionObservation:
+                  map_to_camera: tuple[Matrix3, Vector3], object_mask: Bools | None = None
+                  ) -> VisionObservation:
         """Apply one exposure; returns what it updated."""
-        observation = self.observe(depth, P, map_to_camera)
+        observation = self.observe(depth, P, map_to_camera, object_mask)
         flat = self.log_odds.reshape(-1)
         flat[observation.cells] = np.clip(flat[observation.cells] + observation.log_odds,
                                           *self.clamp)

@@ -18,23 +18,28 @@ from typing import Any
 import numpy as np
 
 from inhand_common.bag_source import BagSource
-from inhand_mapping.mapping_config import RegistrationConfig
+from inhand_mapping.cloud_layouts import vision_cells, vision_log_odds
+from inhand_mapping.mapping_config import OccupancyConfig, RegistrationConfig
 from inhand_stereo.bag_stereo import BagStereo, has_stereo_pair, read_bag_stereo
 from inhand_stereo.shot_placement import PlacedShot
 from inhand_stereo.stereo_config import StereoConfig, load_stereo_config
 from inhand_stereo.texture import CellTexture
+from inhand_stereo.vision_model import VisionMap
 
 __all__ = ['BagShot', 'bag_has_stereo_pair', 'read_bag_shot', 'stereo_config_for_map']
 
 
 def stereo_config_for_map(configs: Sequence[str], registration: RegistrationConfig,
-                          resolution: float, overrides: Mapping[str, Any] | None = None
-                          ) -> StereoConfig:
+                          occupancy: OccupancyConfig,
+                          overrides: Mapping[str, Any] | None = None) -> StereoConfig:
     """The stereo node's parameters from ``configs``' ``stereo_node`` sections, placed as the
-    map is: the registration's mode, object sensor and max_gap, the grid's cell size."""
+    map is: the registration's mode, object sensor and max_gap, the occupancy grid and its
+    clamps (the node shares those parameters with the mapping nodes)."""
     stereo = load_stereo_config(configs, overrides)
+    clamp = (occupancy.model.clamp_min, occupancy.model.clamp_max)
     return replace(stereo, mode=registration.mode, object_name=registration.object_name,
-                   max_gap=registration.max_gap, resolution=resolution)
+                   max_gap=registration.max_gap, grid=occupancy.grid, clamp=clamp,
+                   vision=replace(stereo.vision, p_free=clamp[0], p_occupied=clamp[1]))
 
 
 def bag_has_stereo_pair(bag: Path) -> bool:
@@ -65,6 +70,15 @@ class BagShot:
     def texture(self, centres: np.ndarray) -> CellTexture:
         """Colours of occupied cells (map-frame centres), as ``occupancy/textured``."""
         return self.placed.texture(centres, self.config.resolution, self.config.camera_pose)
+
+    def vision_log_odds(self) -> np.ndarray:
+        """The vision local map of every usable pair of the bag (each integrated once), as
+        the occupancy node receives it: through ``vision/cloud``'s float32 layout."""
+        vision = VisionMap(self.config.grid, self.config.vision, self.config.clamp)
+        for placed in self.pairs.placed:
+            placed.integrate_into(vision, self.config.camera_pose, self.config.segmentation)
+        log_odds, _ = vision_log_odds(vision_cells(vision.spec, vision.log_odds), vision.spec)
+        return log_odds
 
 
 def read_bag_shot(bag: Path, config: StereoConfig) -> tuple[BagShot | None, str | None]:

@@ -14,6 +14,13 @@ Services (std_srvs/Trigger): ``occupancy/reset`` clears the map; ``occupancy/sav
 writes ``<output_dir>/<map_name>.npz`` (whole grid) and ``.ply`` (occupied cells)
 atomically and answers with the paths.
 
+With ``fusion`` (product or entropy) the node also subscribes ``vision/cloud`` (the stereo
+node's vision local map, latched): ``occupancy/cloud``, ``occupancy/occupied``, the centre
+of mass and the saved files are then the global map fused from the touch map and the
+latest vision map (fusion.py, global_map.py), ``occupancy/touch/cloud`` carries the touch
+local map, and the NPZ keeps both local maps. ``occupancy/reset`` clears the touch map;
+the vision map stays (it is the stereo node's, from a picture taken once).
+
 Subscribes ``occupancy/textured`` too (the stereo node's colours of the occupied cells,
 latched): a save colours the occupied cells with the latest of it (``red green blue
 textured`` in the PLYs, ``rgb``/``textured`` in the NPZ); cells occupied since it came are
@@ -39,7 +46,8 @@ from inhand_common.packed_rgb import colours_of_rgb
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
 from inhand_common.ros_names import MAP_FRAME
 from inhand_common.ros_parameters import declare_parameters
-from inhand_mapping.cloud_layouts import unpack_registered
+from inhand_mapping.cloud_layouts import unpack_registered, vision_log_odds
+from inhand_mapping.global_map import GlobalMap
 from inhand_mapping.map_io import GridColours
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, OccupancyConfig
@@ -55,13 +63,21 @@ class OccupancyNode(Node):
         self.config = OccupancyConfig.from_parameters(
             declare_parameters(self, OCCUPANCY_PARAMETERS))
         self.grid = self.config.make_grid()
-        self.products = MapProducts(self.grid, self.config.occupied_threshold)
+        config = self.config
+        self.map = GlobalMap(self.grid, config.fusion, config.entropy_radius,
+                             config.log_odds_clamp)
+        self._products: dict[int, MapProducts] = {}   # by grid: touch, fused
         self._changed = False
         self._idle_ticks = 0   # publish periods since points last came
         self._latest_stamp = None
         self._colours: GridColours | None = None   # the latest occupancy/textured, by cell
         self.create_subscription(PointCloud2, 'registration/points', self._on_points, POINTS_QOS)
         self.create_subscription(PointCloud2, 'occupancy/textured', self._on_textured, MAP_QOS)
+        self._touch_cloud = None
+        if config.fusion != 'none':
+            self.create_subscription(PointCloud2, 'vision/cloud', self._on_vision, MAP_QOS)
+            self._touch_cloud = self.create_publisher(PointCloud2, 'occupancy/touch/cloud',
+                                                      MAP_QOS)
         self._cloud = self.create_publisher(PointCloud2, 'occupancy/cloud', MAP_QOS)
         self._occupied = self.create_publisher(PointCloud2, 'occupancy/occupied', MAP_QOS)
         self._com = self.create_publisher(PointStamped, 'occupancy/center_of_mass', MAP_QOS)
@@ -74,13 +90,21 @@ class OccupancyNode(Node):
             f'{spec.size:g} m cube centred at {list(spec.centre)} in {MAP_FRAME}; '
             f'neighbourhood {model.neighbourhood}, distance to {model.distance_to}, '
             f'P(Z|not O) {model.p_z_given_not_occupied:g}, evidence rate '
-            f'{model.evidence_rate:g} Hz, visit gap {model.visit_gap:g} s')
+            f'{model.evidence_rate:g} Hz, visit gap {model.visit_gap:g} s; fusion '
+            f'{config.fusion}')
+
+    def products(self, grid) -> MapProducts:
+        """The clouds and object frame of ``grid`` (buffers made once per grid)."""
+        if id(grid) not in self._products:
+            self._products[id(grid)] = MapProducts(grid, self.config.occupied_threshold)
+        return self._products[id(grid)]
 
     def _on_points(self, msg: PointCloud2) -> None:
         points, times, fingers = unpack_registered(from_point_cloud2(msg))
         self._idle_ticks = 0
         if len(points):
             self.grid.integrate(points, times, fingers)
+            self.map.touch_changed()
             self._changed = True
         if len(times):
             self._latest_stamp = msg.header.stamp
@@ -97,6 +121,20 @@ class OccupancyNode(Node):
             self.grid.spec, centres[inside], colours_of_rgb(cloud['rgb'][inside]),
             cloud['textured'][inside].astype(bool))
 
+    def _on_vision(self, msg: PointCloud2) -> None:
+        log_odds, outside = vision_log_odds(from_point_cloud2(msg), self.grid.spec)
+        if outside:
+            self.get_logger().warning(
+                f'vision/cloud: {outside} of {msg.width} cells outside this map (another '
+                'grid? the stereo node must share workspace_size, workspace_centre and '
+                'resolution); they are not fused')
+        first = self.map.vision is None
+        self.map.set_vision(log_odds)
+        self._changed = True
+        if first:
+            self.get_logger().info(f'vision map: {msg.width} cells; publishing the '
+                                   f'{self.config.fusion} fusion of touch and vision')
+
     def _publish(self) -> None:
         self._idle_ticks += 1
         if self._idle_ticks >= 2:
@@ -105,12 +143,18 @@ class OccupancyNode(Node):
             return
         self._changed = False
         stamp = self._latest_stamp or self.get_clock().now().to_msg()
-        touched, occupied = self.products.cells()
+        grid = self.map.grid()
+        products = self.products(grid)
+        if self._touch_cloud is not None:
+            touch, _ = self.products(self.grid).cells()
+            self._touch_cloud.publish(serialize_point_cloud2(touch, MAP_FRAME, stamp.sec,
+                                                             stamp.nanosec))
+        touched, occupied = products.cells()
         # Serialized here and published as bytes: a full map is 8 MB (see point_cloud.py).
         self._cloud.publish(serialize_point_cloud2(touched, MAP_FRAME, stamp.sec, stamp.nanosec))
         self._occupied.publish(serialize_point_cloud2(occupied, MAP_FRAME, stamp.sec,
                                                       stamp.nanosec))
-        frame = self.products.object_frame()
+        frame = products.object_frame()
         if frame is not None:
             msg = PointStamped()
             msg.header.frame_id = MAP_FRAME
@@ -120,6 +164,7 @@ class OccupancyNode(Node):
 
     def _on_reset(self, _request, response):
         self.grid.reset()
+        self.map.touch_changed()
         self._colours = None
         self._changed = True
         response.success = True
@@ -131,19 +176,24 @@ class OccupancyNode(Node):
         """Apply the samples the map holds back for their dwell weights (see the top)."""
         if self.grid.pending:
             self.grid.flush()
+            self.map.touch_changed()
             self._changed = True
 
     def _on_save(self, _request, response):
         self._apply_held()
+        grid = self.map.grid()
         colours = textured = None
         if self._colours is not None:
-            centres = self.grid.cells(threshold=self.config.occupied_threshold)[0]
-            colours, textured = self._colours.at(self.grid.spec, centres)
+            centres = grid.cells(threshold=self.config.occupied_threshold)[0]
+            colours, textured = self._colours.at(grid.spec, centres)
         try:
-            paths = save_map(self.grid, self.config.output_dir, self.config.map_name,
+            paths = save_map(grid, self.config.output_dir, self.config.map_name,
                              self.config.occupied_threshold, MAP_FRAME,
-                             extra={'node': self.get_fully_qualified_name()},
-                             colours=colours, textured=textured)
+                             extra={'node': self.get_fully_qualified_name(),
+                                    'fusion': self.config.fusion if self.map.fusing
+                                    else 'none'},
+                             colours=colours, textured=textured,
+                             local_maps=self.map.local_maps())
         except OSError as error:
             response.success = False
             response.message = f'could not save the map: {error}'

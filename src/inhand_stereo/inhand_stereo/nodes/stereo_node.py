@@ -10,7 +10,9 @@ Publishes, reliable and transient-local (a late subscriber gets the latest):
 ``stereo/disparity`` (stereo_msgs/DisparityImage, frame ``stereo_left_optical``),
 ``stereo/points`` (PointCloud2 ``x y z rgb`` in the map frame ``object``) and
 ``occupancy/textured`` (every occupied cell with ``x y z intensity rgb textured``), the
-last re-coloured from the last pair on every map update.
+last re-coloured from the last pair on every map update, and ``vision/cloud``: the vision
+local map (paper eqs. 5-7, vision_model.py) on the occupancy grid, every pair's object
+pixels (scene_segmentation.py) integrated once, for the occupancy node's fusion.
 
 A pair that cannot be used (sizes that differ, an unsupported encoding, a camera_info
 inconsistent with the image or with a zero focal length, a right P without a baseline) gets
@@ -37,7 +39,7 @@ from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
 from inhand_common.ros_names import MAP_FRAME, STEREO_FRAME, station_pose_topic
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
-from inhand_mapping.cloud_layouts import textured_cells
+from inhand_mapping.cloud_layouts import textured_cells, vision_cells
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 from inhand_mapping.qos import LATCHED_QOS
 from inhand_mapping.registration import Registrar
@@ -45,6 +47,7 @@ from inhand_stereo.shot_placement import PlacedShot, ShotPlacer, UnplacedShot
 from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
 from inhand_stereo.stereo_inputs import StereoInputs, StereoPair, shot_from_messages
 from inhand_stereo.stereo_pipeline import StereoPipeline, StereoShot
+from inhand_stereo.vision_model import VisionMap
 
 IMAGE_QOS = qos_profile_sensor_data          # best-effort, depth 5
 # A best-effort reader matches every camera driver and bag replay, but Fast DDS never hands it
@@ -67,6 +70,7 @@ class StereoNode(Node):
         self.inputs: StereoInputs[Image, CameraInfo] = StereoInputs()
         self.placer = ShotPlacer(Registrar(config.mode, config.max_gap))
         self.placed: PlacedShot | None = None
+        self.vision = VisionMap(config.grid, config.vision, config.clamp)
         self.cells: np.ndarray | None = None         # the latest occupied cloud's points
         self.counts = {'pairs': 0, 'refused': 0, 'no_object_pose': 0}
         for side in ('left', 'right'):
@@ -83,6 +87,7 @@ class StereoNode(Node):
         self._disparity = self.create_publisher(DisparityImage, 'stereo/disparity', LATCHED_QOS)
         self._points = self.create_publisher(PointCloud2, 'stereo/points', LATCHED_QOS)
         self._textured = self.create_publisher(PointCloud2, 'occupancy/textured', LATCHED_QOS)
+        self._vision = self.create_publisher(PointCloud2, 'vision/cloud', LATCHED_QOS)
         matcher = self.pipeline.matcher.config
         self.get_logger().info(
             f"stereo: {'semi-global' if matcher.stereo_algorithm else 'block'} matching, "
@@ -150,6 +155,7 @@ class StereoNode(Node):
             self._points.publish(serialize_point_cloud2(cloud, MAP_FRAME, stamp.sec,
                                                         stamp.nanosec))
             self._publish_texture()
+            self._publish_vision(outcome, stamp)
 
     # ------------------------------------------------------------------ outputs
     def _publish_disparity(self, shot: StereoShot, header: Any) -> None:
@@ -171,6 +177,18 @@ class StereoNode(Node):
         msg.max_disparity = float(result.max_disparity)
         msg.delta_d = float(result.delta_d)
         self._disparity.publish(msg)
+
+    def _publish_vision(self, placed: PlacedShot, stamp: Any) -> None:
+        started = time.perf_counter()
+        observation, segmentation = placed.integrate_into(self.vision, self.config.camera_pose,
+                                                          self.config.segmentation)
+        cells = vision_cells(self.vision.spec, self.vision.log_odds)
+        self._vision.publish(serialize_point_cloud2(cells, MAP_FRAME, stamp.sec, stamp.nanosec))
+        self.get_logger().info(
+            f'vision map: pair {self.vision.exposures} updated {len(observation.cells)} cells '
+            f'from {int(segmentation.keep.sum())} object pixels (support plane '
+            f"{'removed' if segmentation.support is not None else 'none'}) in "
+            f'{(time.perf_counter() - started) * 1000:.0f} ms')
 
     def _publish_texture(self) -> None:
         if self.placed is None or self.cells is None:

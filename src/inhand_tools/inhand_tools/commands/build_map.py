@@ -22,12 +22,15 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from inhand_common.cli_types import command_parser
 from inhand_common.parameters import ParameterError
 from inhand_common.ros_names import MAP_FRAME
 from inhand_mapping.bag_mapping import build_map_from_bag
+from inhand_mapping.global_map import GlobalMap
 from inhand_mapping.map_products import MapProducts, save_map
-from inhand_mapping.mapping_config import load_parameters, parse_overrides
+from inhand_mapping.mapping_config import OccupancyConfig, load_parameters, parse_overrides
 from inhand_mapping.occupancy import OccupancyGrid
 from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
 from inhand_stereo.texture import CellTexture
@@ -37,22 +40,31 @@ EXIT_TRUNCATED = 1
 EXIT_BAD_INPUT = 2
 
 
-def _texture(bag: Path, stereo: StereoConfig, grid: OccupancyGrid, threshold: float
-             ) -> tuple[CellTexture | None, str | None]:
-    """The occupied cells' colours from the bag's first usable stereo pair, as the stereo
-    node gives them, and a line saying so; (None, why) if there are none (why is None for
-    a bag without images). Refused pairs are reported on stderr."""
+def _with_vision(bag: Path, stereo: StereoConfig, occupancy: OccupancyConfig,
+                 touch: OccupancyGrid) -> tuple[GlobalMap, CellTexture | None, list[str]]:
+    """The map the nodes would publish (the touch map, or its fusion with the vision map
+    of the bag's stereo pairs), the colours of its occupied cells from the first pair, and
+    lines saying what the pairs gave. Refused pairs are reported on stderr."""
+    global_map = GlobalMap(touch, occupancy.fusion, occupancy.entropy_radius,
+                           occupancy.log_odds_clamp)
     started = time.monotonic()
     shot, why = read_bag_shot(bag, stereo)
     if shot is None:
-        return None, None if why is None else f'  texture: none ({why})'
+        return global_map, None, [] if why is None else [f'  texture: none ({why})']
     for line in shot.pairs.refused:
         print(f'build_map: {line}', file=sys.stderr)
-    centres = grid.cells(threshold=threshold)[0]
+    notes = []
+    if occupancy.fusion != 'none':
+        global_map.set_vision(shot.vision_log_odds())
+        observed = int(np.count_nonzero(global_map.vision))
+        notes.append(f'  vision: {len(shot.pairs.placed)} stereo pair(s), {observed} cells '
+                     f'observed; {occupancy.fusion} fusion with touch')
+    centres = global_map.grid().cells(threshold=occupancy.occupied_threshold)[0]
     texture = shot.texture(centres)
-    return texture, (f'  texture: {int(texture.textured.sum())} of {len(centres)} occupied '
-                     f'cells seen by the stereo pair at {shot.stamp:.3f} s '
-                     f'({time.monotonic() - started:.2f} s)')
+    notes.append(f'  texture: {int(texture.textured.sum())} of {len(centres)} occupied cells '
+                 f'seen by the stereo pair at {shot.stamp:.3f} s '
+                 f'({time.monotonic() - started:.2f} s)')
+    return global_map, texture, notes
 
 
 def main(argv=None) -> int:
@@ -72,8 +84,7 @@ def main(argv=None) -> int:
         overrides = parse_overrides(args.set)
         registration, occupancy = load_parameters(
             args.config, overrides, also_known={spec.name for spec in STEREO_PARAMETERS})
-        stereo = stereo_config_for_map(args.config, registration, occupancy.grid.resolution,
-                                       overrides)
+        stereo = stereo_config_for_map(args.config, registration, occupancy, overrides)
         if not args.bag.exists():
             raise ValueError(f'{args.bag}: no such bag')
         start = time.monotonic()
@@ -84,12 +95,16 @@ def main(argv=None) -> int:
     elapsed = time.monotonic() - start
     grid, registrar, report = result['grid'], result['registrar'], result['report']
     threshold = occupancy.occupied_threshold
-    texture, texture_note = _texture(args.bag, stereo, grid, threshold)
+    touch = grid
+    global_map, texture, stereo_notes = _with_vision(args.bag, stereo, occupancy, touch)
+    grid = global_map.grid()
     name = args.name or args.bag.name.rsplit('.', 1)[0] or 'map'
     paths = save_map(grid, args.output_dir, name, threshold, MAP_FRAME,
-                     extra={'bag': str(args.bag), 'truncated': report['truncated']},
+                     extra={'bag': str(args.bag), 'truncated': report['truncated'],
+                            'fusion': occupancy.fusion if global_map.fusing else 'none'},
                      colours=None if texture is None else texture.colours,
-                     textured=None if texture is None else texture.textured)
+                     textured=None if texture is None else texture.textured,
+                     local_maps=global_map.local_maps())
     stats = registrar.stats
     span = ((report['bag_end'] or 0) - (report['bag_start'] or 0)) * 1e-9
     products = MapProducts(grid, threshold)
@@ -104,8 +119,8 @@ def main(argv=None) -> int:
     print(f'  map: {grid.counts.integrated} points integrated, {grid.counts.outside} outside '
           f'the workspace, {grid.counts.invalid} invalid; {len(touched)} cells touched, '
           f'{len(occupied)} above {threshold:g}')
-    if texture_note:
-        print(texture_note)
+    for note in stereo_notes:
+        print(note)
     if frame is not None:
         print('  centre of mass (object frame): '
               + ', '.join(f'{v:+.4f}' for v in frame.centre_of_mass) + ' m')

@@ -1,0 +1,64 @@
+"""The map the occupancy node publishes and saves: the touch map, or the global map fused
+from the touch map and the vision map (``fusion.py``).
+
+:class:`GlobalMap` keeps the touch grid (integrated by the node or ``build_map``), the latest
+vision map (log-odds from ``vision/cloud``) and a grid that shows their fusion; the fusion
+is redone only when either has changed since. Shared by the node and ``build_map`` so both
+publish and save the same map.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from inhand_mapping.fusion import Fused, fuse
+from inhand_mapping.occupancy import OccupancyGrid
+
+__all__ = ['GlobalMap']
+
+
+class GlobalMap:
+    def __init__(self, touch: OccupancyGrid, fusion: str = 'none', entropy_radius: int = 0,
+                 clamp: tuple[float, float] = (-np.inf, np.inf)):
+        self.touch = touch
+        self.fusion, self.entropy_radius, self.clamp = fusion, entropy_radius, clamp
+        self.vision: NDArray[np.float64] | None = None
+        self._fused: OccupancyGrid | None = None
+        self.last: Fused | None = None
+        self._stale = True
+
+    @property
+    def fusing(self) -> bool:
+        """Whether the published map is a fusion (fusion on and a vision map there)."""
+        return self.fusion != 'none' and self.vision is not None
+
+    def set_vision(self, log_odds: NDArray[np.float64] | None) -> None:
+        """The vision map (log-odds on the touch grid, prior 0), or None to drop it."""
+        if log_odds is not None and log_odds.shape != self.touch.spec.shape:
+            raise ValueError(f'vision map of shape {log_odds.shape} for a grid of '
+                             f'{self.touch.spec.shape}')
+        self.vision = log_odds
+        self._stale = True
+
+    def touch_changed(self) -> None:
+        self._stale = True
+
+    def grid(self) -> OccupancyGrid:
+        """The map to publish and save: the touch grid itself, or the fused view of it."""
+        if not self.fusing:
+            return self.touch
+        if self._fused is None:
+            self._fused = OccupancyGrid(self.touch.spec, self.touch.model)
+        if self._stale:
+            self.last = fuse(self.fusion, self.touch.log_odds, self.vision, self.clamp,
+                             self.entropy_radius)
+            self._fused.show(self.last.log_odds, self.touch)
+            self._stale = False
+        return self._fused
+
+    def local_maps(self) -> dict[str, NDArray[np.float64]] | None:
+        """The local maps to save beside a fused map (None when not fusing)."""
+        if not self.fusing or self.vision is None:
+            return None
+        return {'touch': self.touch.log_odds, 'vision': self.vision}
