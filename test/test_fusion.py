@@ -83,3 +83,19 @@ def test_a_bad_fusion_name_or_radius_is_refused():
         fuse('average', grid, grid, CLAMP)
     with pytest.raises(ValueError, match='radius'):
         fuse('entropy', grid, grid, CLAMP, entropy_radius=-1)
+
+
+def test_log_pooling_keeps_the_confident_sensors_evidence():
+    # touch sure of a cell vision did not see; both agree on a second cell
+    touch = logit([0.97, 0.9]).reshape(1, 1, 2)
+    vision = logit([0.5, 0.9]).reshape(1, 1, 2)
+    linear = sigmoid(fuse('entropy', touch, vision, CLAMP).log_odds).ravel()
+    log = fuse('entropy', touch, vision, CLAMP, entropy_pooling='log')
+    w_touch, w_vision = log.touch_weight, log.vision_weight
+    expected = (w_touch * touch + w_vision * vision) / max(w_touch, w_vision)
+    assert np.allclose(log.log_odds, np.clip(expected, *CLAMP))
+    pooled = sigmoid(log.log_odds).ravel()
+    assert linear[0] < 0.8 < pooled[0]            # the sum of probabilities loses the cell
+    assert pooled[1] > 0.9                        # agreement is kept
+    with pytest.raises(ValueError, match='pooling'):
+        fuse('entropy', touch, vision, CLAMP, entropy_pooling='max')

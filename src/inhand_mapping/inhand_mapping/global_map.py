@@ -9,6 +9,8 @@ publish and save the same map.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -19,10 +21,18 @@ __all__ = ['GlobalMap']
 
 
 class GlobalMap:
+    @classmethod
+    def for_config(cls, touch: OccupancyGrid, config: Any) -> GlobalMap:
+        """With the fusion settings of an OccupancyConfig."""
+        return cls(touch, config.fusion, config.entropy_radius, config.log_odds_clamp,
+                   config.entropy_pooling)
+
     def __init__(self, touch: OccupancyGrid, fusion: str = 'none', entropy_radius: int = 0,
-                 clamp: tuple[float, float] = (-np.inf, np.inf)):
+                 clamp: tuple[float, float] = (-np.inf, np.inf),
+                 entropy_pooling: str = 'linear'):
         self.touch = touch
         self.fusion, self.entropy_radius, self.clamp = fusion, entropy_radius, clamp
+        self.entropy_pooling = entropy_pooling
         self.vision: NDArray[np.float64] | None = None
         self._fused: OccupancyGrid | None = None
         self.last: Fused | None = None
@@ -52,7 +62,7 @@ class GlobalMap:
             self._fused = OccupancyGrid(self.touch.spec, self.touch.model)
         if self._stale:
             self.last = fuse(self.fusion, self.touch.log_odds, self.vision, self.clamp,
-                             self.entropy_radius)
+                             self.entropy_radius, self.entropy_pooling)
             self._fused.show(self.last.log_odds, self.touch)
             self._stale = False
         return self._fused

@@ -17,7 +17,7 @@ import yaml
 
 from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
 from inhand_common.ros_names import DEFAULT_OBJECT_STATION, station_pose_topic
-from inhand_mapping.fusion import FUSIONS
+from inhand_mapping.fusion import FUSIONS, POOLINGS
 from inhand_mapping.occupancy import DISTANCES, GridSpec, OccupancyGrid, SensorModel
 from inhand_mapping.registration import Registrar
 
@@ -78,6 +78,9 @@ OCCUPANCY_PARAMETERS = (
     ParamSpec('entropy_radius', 0, 'entropy fusion: 0 weighs each sensor by its whole map\'s '
               'entropy (the paper); r > 0 by the entropy of the (2r+1)^3 cells around each '
               'cell', minimum=0, maximum=10),
+    ParamSpec('entropy_pooling', 'linear', 'entropy fusion: linear (eq. 12, the weighted sum '
+              'of probabilities) or log (the weighted sum of log-odds, the stronger sensor '
+              'at full weight)', choices=POOLINGS),
     ParamSpec('output_dir', 'maps', 'Folder occupancy/save writes <map_name>.npz and .ply to'),
     ParamSpec('map_name', 'map', 'File name stem of saved maps'),
 )
@@ -142,6 +145,7 @@ class OccupancyConfig:
     map_name: str
     fusion: str = 'none'
     entropy_radius: int = 0
+    entropy_pooling: str = 'linear'
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any]) -> OccupancyConfig:
@@ -170,7 +174,8 @@ class OccupancyConfig:
                    occupied_threshold=float(values['occupied_threshold']),
                    publish_rate=float(values['publish_rate']),
                    output_dir=Path(values['output_dir']), map_name=values['map_name'],
-                   fusion=values['fusion'], entropy_radius=int(values['entropy_radius']))
+                   fusion=values['fusion'], entropy_radius=int(values['entropy_radius']),
+                   entropy_pooling=values['entropy_pooling'])
 
     @property
     def log_odds_clamp(self) -> tuple[float, float]:

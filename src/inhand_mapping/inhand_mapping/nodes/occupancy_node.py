@@ -64,8 +64,7 @@ class OccupancyNode(Node):
             declare_parameters(self, OCCUPANCY_PARAMETERS))
         self.grid = self.config.make_grid()
         config = self.config
-        self.map = GlobalMap(self.grid, config.fusion, config.entropy_radius,
-                             config.log_odds_clamp)
+        self.map = GlobalMap.for_config(self.grid, config)
         self._products: dict[int, MapProducts] = {}   # by grid: touch, fused
         self._changed = False
         self._idle_ticks = 0   # publish periods since points last came

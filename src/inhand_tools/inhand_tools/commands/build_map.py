@@ -45,8 +45,7 @@ def _with_vision(bag: Path, stereo: StereoConfig, occupancy: OccupancyConfig,
     """The map the nodes would publish (the touch map, or its fusion with the vision map
     of the bag's stereo pairs), the colours of its occupied cells from the first pair, and
     lines saying what the pairs gave. Refused pairs are reported on stderr."""
-    global_map = GlobalMap(touch, occupancy.fusion, occupancy.entropy_radius,
-                           occupancy.log_odds_clamp)
+    global_map = GlobalMap.for_config(touch, occupancy)
     started = time.monotonic()
     shot, why = read_bag_shot(bag, stereo)
     if shot is None:
