@@ -86,16 +86,18 @@ def test_a_bad_fusion_name_or_radius_is_refused():
 
 
 def test_log_pooling_keeps_the_confident_sensors_evidence():
-    # touch sure of a cell vision did not see; both agree on a second cell
-    touch = logit([0.97, 0.9]).reshape(1, 1, 2)
-    vision = logit([0.5, 0.9]).reshape(1, 1, 2)
-    linear = sigmoid(fuse('entropy', touch, vision, CLAMP).log_odds).ravel()
+    # touch is sure of cell 0, which vision did not see; vision is sure the rest is free
+    # (so its map is the less uncertain one and weighs more); both agree on the last cell
+    touch = logit([0.97, 0.5, 0.5, 0.5, 0.9]).reshape(1, 1, 5)
+    vision = logit([0.5, 0.03, 0.03, 0.03, 0.9]).reshape(1, 1, 5)
+    linear = fuse('entropy', touch, vision, CLAMP)
     log = fuse('entropy', touch, vision, CLAMP, entropy_pooling='log')
     w_touch, w_vision = log.touch_weight, log.vision_weight
+    assert w_vision > w_touch and linear.touch_weight == pytest.approx(w_touch)
     expected = (w_touch * touch + w_vision * vision) / max(w_touch, w_vision)
     assert np.allclose(log.log_odds, np.clip(expected, *CLAMP))
-    pooled = sigmoid(log.log_odds).ravel()
-    assert linear[0] < 0.8 < pooled[0]            # the sum of probabilities loses the cell
-    assert pooled[1] > 0.9                        # agreement is kept
+    assert sigmoid(linear.log_odds[0, 0, 0]) < 0.8          # the sum of probabilities loses it
+    assert sigmoid(log.log_odds[0, 0, 0]) > 0.8             # the weighted log-odds keep it
+    assert sigmoid(log.log_odds[0, 0, 4]) > 0.9             # agreement is kept
     with pytest.raises(ValueError, match='pooling'):
         fuse('entropy', touch, vision, CLAMP, entropy_pooling='max')
