@@ -429,3 +429,25 @@ def test_tracked_map_lies_on_the_true_surface(written, moving_session, tmp_path)
     assert len(cells) > 15
     assert np.mean(distance <= 0.005) > 0.95
     assert np.median(distance) < 0.003
+
+
+def test_the_camera_viewpoint_is_a_setting_and_the_default_keeps_old_sessions_bytes():
+    import json
+    import math
+
+    from inhand_sim.session import SessionSettings
+    from inhand_sim.stereo_rig import DEFAULT_VIEW_DIRECTION
+    default = SessionSettings()
+    assert default.camera_direction == DEFAULT_VIEW_DIRECTION
+    assert 'camera_azimuth_deg' not in json.loads(default.to_json())
+    above = SessionSettings(camera_azimuth_deg=0.0, camera_elevation_deg=60.0)
+    x, y, z = above.camera_direction
+    # tracker z points down: 60 degrees above the horizontal, towards +x
+    assert (x, y, z) == pytest.approx((0.5, 0.0, -math.sqrt(3) / 2))
+    assert json.loads(above.to_json())['camera_elevation_deg'] == 60.0
+    # only the azimuth given: the default rig's elevation
+    side = SessionSettings(camera_azimuth_deg=90.0)
+    default_elevation = math.asin(0.55 / math.dist((0, 0, 0), DEFAULT_VIEW_DIRECTION))
+    assert side.camera_direction[2] == pytest.approx(-math.sin(default_elevation))
+    with pytest.raises(ValueError, match='camera_elevation_deg'):
+        SessionSettings(camera_elevation_deg=95.0)

@@ -63,7 +63,7 @@ from inhand_common.rotations import (
 from inhand_mapping.pose_cdr import encode_pose_stamped
 from inhand_sim.exploration import FINGERS, Exploration, ExplorationSettings, TrackerNoise, explore
 from inhand_sim.objects import ObjectModel, get_object
-from inhand_sim.stereo_rig import RenderedPair, StereoRig, render_pair
+from inhand_sim.stereo_rig import DEFAULT_VIEW_DIRECTION, RenderedPair, StereoRig, render_pair
 from inhand_sim.textures import surface_colour
 
 __all__ = [
@@ -110,6 +110,11 @@ class SessionSettings:
     # (inhand_sim.stereo_rig) looking at the object from camera_distance.
     stereo: bool = False
     camera_distance: float = 0.42         # m
+    # Where the rig stands around the object (tracker frame, z down): azimuth about the
+    # vertical from the tracker's +x, elevation above the horizontal. None: the default rig's
+    # view (from the tracker's -y side, 34 degrees up).
+    camera_azimuth_deg: float | None = None
+    camera_elevation_deg: float | None = None
 
     def __post_init__(self):
         problems = []
@@ -127,13 +132,36 @@ class SessionSettings:
             problems.append(f'seed {self.seed} must be >= 0')
         if not 0.15 <= self.camera_distance <= 2.0:
             problems.append(f'camera_distance {self.camera_distance} must be in [0.15, 2] m')
+        if self.camera_elevation_deg is not None and not -80 <= self.camera_elevation_deg <= 89:
+            problems.append(f'camera_elevation_deg {self.camera_elevation_deg} must be in '
+                            '[-80, 89] degrees')
         if self.static and self.second_object_sensor:
             problems.append('a static session has no object sensor, so no second one either')
         if problems:
             raise ValueError('; '.join(problems))
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), sort_keys=True, separators=(',', ':'))
+        # The viewpoint keys only when set, so sessions made before they existed (the
+        # bundled bags) are written byte for byte as they were.
+        values = {key: value for key, value in asdict(self).items()
+                  if not (key in ('camera_azimuth_deg', 'camera_elevation_deg')
+                          and value is None)}
+        return json.dumps(values, sort_keys=True, separators=(',', ':'))
+
+    @property
+    def camera_direction(self) -> tuple[float, float, float]:
+        """Object -> camera, tracker frame: from the azimuth and elevation, or the default
+        rig's direction."""
+        if self.camera_azimuth_deg is None and self.camera_elevation_deg is None:
+            return DEFAULT_VIEW_DIRECTION
+        default_x, default_y, default_z = DEFAULT_VIEW_DIRECTION
+        azimuth = math.radians(self.camera_azimuth_deg) if self.camera_azimuth_deg is not None \
+            else math.atan2(default_y, default_x)
+        elevation = math.radians(self.camera_elevation_deg) \
+            if self.camera_elevation_deg is not None \
+            else math.asin(-default_z / math.dist((0, 0, 0), DEFAULT_VIEW_DIRECTION))
+        return (math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth),
+                -math.sin(elevation))
 
 
 @dataclass
@@ -354,7 +382,9 @@ def _stereo_shot(settings: SessionSettings, obj: ObjectModel, position: np.ndarr
     held objects in the air (the backdrop behind them either way). The rig stands where a bench
     rig would: fixed, aimed at the table's object position whether or not the object is held
     (so one camera_pose calibration serves every session)."""
-    rig = StereoRig.looking_at(target=settings.static_centre, distance=settings.camera_distance)
+    rig = StereoRig.looking_at(target=settings.static_centre,
+                               direction=settings.camera_direction,
+                               distance=settings.camera_distance)
     # Its own stream of the seed: the poses above stay what they were without a camera.
     rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(6)[5])
     return render_pair(rig, obj, (position, quaternion), rng, table=settings.static)

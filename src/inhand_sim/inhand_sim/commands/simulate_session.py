@@ -84,6 +84,13 @@ def make_parser() -> argparse.ArgumentParser:
                         'stamped at the first tracker frame, with its true depth in the sidecar')
     parser.add_argument('--camera-distance', type=number(at_least=0.15, at_most=2.0, unit='m'),
                         default=0.42, help='distance of the stereo rig from the object (m)')
+    parser.add_argument('--camera-azimuth', type=number(at_least=-360.0, at_most=360.0,
+                                                        unit='degrees'),
+                        help='where the rig stands around the object: degrees about the '
+                        'vertical from the tracker\'s +x (default: the bench rig, -79)')
+    parser.add_argument('--camera-elevation', type=number(at_least=-80.0, at_most=89.0,
+                                                          unit='degrees'),
+                        help='degrees above the horizontal (default: the bench rig, 34)')
     parser.add_argument('--force', action='store_true', help='replace an existing bag and sidecar')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
     return parser
@@ -141,7 +148,8 @@ def main(argv=None) -> int:
         regrasp=(args.regrasp is not False) and not args.static,
         second_object_sensor=args.second_object_sensor, rate=args.rate,
         duration=args.duration, seed=args.seed, noise_mm=args.noise_mm, stereo=args.stereo,
-        camera_distance=args.camera_distance)
+        camera_distance=args.camera_distance, camera_azimuth_deg=args.camera_azimuth,
+        camera_elevation_deg=args.camera_elevation)
     progress = _Progress(args.quiet)
     started = time.monotonic()
     session = simulate(settings, progress=lambda stage: progress.stage_done(stage))
