@@ -66,10 +66,22 @@ def scores(log_odds: np.ndarray, grid, surface: SurfaceTruth) -> dict:
     return map_metrics(centres, probability, lattice, surface, 0.8)
 
 
+def camera_file(bag: Path, out: Path) -> Path:
+    """The rig's camera_pose as its calibration would give it: the truth's (a session from
+    another viewpoint than config/stereo.yaml's rig has its own)."""
+    pose = load_truth(Path(f'{bag}.truth.npz')).stereo.camera_pose
+    path = out / f'{bag.name}_camera.yaml'
+    out.mkdir(parents=True, exist_ok=True)
+    path.write_text('/**/stereo_node:\n  ros__parameters:\n    camera_pose: ['
+                    + ', '.join(f'{float(v):.9f}' for v in pose) + ']\n')
+    return path
+
+
 def build(bag: Path, config: str, out: Path, name: str, overrides: list[str]) -> Path:
     command = [str(BIN / 'build_map'), str(bag), '--config', config, '--config',
-               str(WORKSPACE / 'config' / 'stereo.yaml'), '--output-dir', str(out), '--name',
-               name, '--quiet']
+               str(WORKSPACE / 'config' / 'stereo.yaml'), '--config',
+               str(camera_file(bag, out)), '--output-dir', str(out), '--name', name,
+               '--quiet']
     for value in overrides:
         command += ['--set', value]
     subprocess.run(command, check=True, capture_output=True, text=True)

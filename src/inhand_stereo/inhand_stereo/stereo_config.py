@@ -58,6 +58,9 @@ STEREO_PARAMETERS: tuple[ParamSpec, ...] = (
               'zeta d) or stereo (sigma_min + zeta d^2)', choices=NOISE_MODELS),
     ParamSpec('vision_update', 'mass', 'A belief over the occupancy value as a probability: '
               'mass (its mass above 1/2) or mean (its mean on [0, 1])', choices=UPDATES),
+    ParamSpec('vision_spread_window', 5, 'Pixels: where the depth\'s local spread over this '
+              'window exceeds the noise model, it is the noise (weak texture, depth edges); '
+              '0: off', minimum=0, maximum=31),
     ParamSpec('plane_tolerance', 0.004, 'Points within this distance (m) of a support plane '
               '(the table) lie on it and are not the object', minimum=0.0005, maximum=0.05),
     ParamSpec('support_fraction', 0.2, 'A plane holding this share of the workspace\'s '
@@ -114,7 +117,8 @@ class StereoConfig:
                                  zeta=float(values['vision_zeta']),
                                  noise=values['vision_noise'], update=values['vision_update'],
                                  p_free=float(values['clamp_min']),
-                                 p_occupied=float(values['clamp_max']))
+                                 p_occupied=float(values['clamp_max']),
+                                 spread_window=int(values['vision_spread_window']))
         except ValueError as error:
             raise ParameterError([f'stereo_node parameters: {error}']) from None
         return cls(disparity=DisparityConfig.from_parameters(

@@ -15,6 +15,14 @@ surface, positive behind it):
   ``zeta = sigma_disparity / (f B)`` in 1/m for a disparity noise in pixels, focal f in
   pixels and baseline B in metres).
 
+The camera's noise is not the same everywhere: a weakly textured surface gives scattered
+matches and a depth edge mixes two surfaces. ``spread_window`` (default 5 px) measures it:
+where the depth's local spread (:func:`depth_spread`) is larger than ``sigma_s(d)``, it
+takes its place, so scattered depths give weak evidence. Measured on the bundled bottle
+(dark glass): the fused map's F@5mm 0.697 -> 0.716, the vision map's precision 0.78 -> 0.81;
+on textured surfaces it costs the vision map a little recall (cat: 0.517 -> 0.469) and the
+fused map at most 0.003 (a 30 s session: 0.025).
+
 From a belief over the occupancy value to a probability (the paper does not say), two
 readings, parameter ``update``:
 
@@ -63,7 +71,7 @@ from inhand_common.array_types import Bools, Floats, Matrix3, Vector3
 from inhand_mapping.occupancy import GridSpec
 
 __all__ = ['NOISE_MODELS', 'UPDATES', 'VisionMap', 'VisionModel', 'VisionObservation',
-           'observe_grid']
+           'depth_spread', 'observe_grid']
 
 NoiseModel: TypeAlias = Literal['linear', 'stereo']
 Update: TypeAlias = Literal['mass', 'mean']
@@ -91,6 +99,7 @@ class VisionModel:
     #                                half a cell
     p_free: float = 0.12           # the lowest probability one observation gives
     p_occupied: float = 0.97       # the highest
+    spread_window: int = 5         # px: the measured local spread of the depth (0: off)
 
     def __post_init__(self) -> None:
         problems = []
@@ -106,6 +115,10 @@ class VisionModel:
             problems.append(f'update must be one of {UPDATES}, got {self.update!r}')
         if self.behind is not None and not self.behind >= 0:
             problems.append(f'behind must be >= 0 m, got {self.behind}')
+        if self.spread_window != 0 and not (3 <= self.spread_window <= 31
+                                            and self.spread_window % 2 == 1):
+            problems.append(f'spread_window must be 0 (off) or odd in [3, 31], got '
+                            f'{self.spread_window}')
         if not 0.0 < self.p_free < 0.5 < self.p_occupied < 1.0:
             problems.append(f'need 0 < p_free ({self.p_free}) < 0.5 < p_occupied '
                             f'({self.p_occupied}) < 1')
@@ -129,27 +142,34 @@ class VisionModel:
         mu: Floats = np.clip(0.5 + delta / self.epsilon, 0.0, 1.0)
         return mu
 
-    def sigma(self, delta: ArrayLike, d: ArrayLike) -> Floats:
-        """Eq. 7: spread of the occupancy value (its units) at ``delta``, measured range ``d``."""
+    def sigma(self, delta: ArrayLike, d: ArrayLike, spread: ArrayLike | None = None) -> Floats:
+        """Eq. 7: spread of the occupancy value (its units) at ``delta``, measured range ``d``;
+        ``spread`` (m), the measured local spread of the depth, raises sigma_s where it is
+        larger (:func:`depth_spread`)."""
         delta = np.asarray(delta, dtype=np.float64)
-        base = self.sigma_s(d) / self.epsilon
+        sigma_s = self.sigma_s(d)
+        if spread is not None:
+            sigma_s = np.maximum(sigma_s, np.asarray(spread, dtype=np.float64))
+        base = sigma_s / self.epsilon
         outside = np.maximum(np.abs(delta) - self.epsilon / 2.0, 0.0)
         sigma: Floats = base * np.exp(-outside / self.tau)
         return sigma
 
-    def probability(self, delta: ArrayLike, d: ArrayLike) -> Floats:
+    def probability(self, delta: ArrayLike, d: ArrayLike, spread: ArrayLike | None = None
+                    ) -> Floats:
         """P(O) of a cell at ``delta`` from a measurement at range ``d``, by ``update``,
         before the clamping to [p_free, p_occupied]."""
         mu = self.mu(delta)
-        sigma = np.maximum(self.sigma(delta, d), TINY_SIGMA)
+        sigma = np.maximum(self.sigma(delta, d, spread), TINY_SIGMA)
         if self.update == 'mass':
             p: Floats = ndtr((mu - 0.5) / sigma)
             return p
         return _truncated_normal_mean(mu, sigma)
 
-    def log_odds(self, delta: ArrayLike, d: ArrayLike) -> Floats:
+    def log_odds(self, delta: ArrayLike, d: ArrayLike, spread: ArrayLike | None = None
+                 ) -> Floats:
         """The clamped log-odds update of one observation."""
-        p = np.clip(self.probability(delta, d), self.p_free, self.p_occupied)
+        p = np.clip(self.probability(delta, d, spread), self.p_free, self.p_occupied)
         update: Floats = np.log(p / (1.0 - p))
         return update
 
@@ -174,9 +194,37 @@ class VisionObservation(NamedTuple):
     range: Floats                 # (M,) d_j
 
 
+def depth_spread(depth: NDArray[np.floating], window: int = 5) -> NDArray[np.float64]:
+    """(H, W) the local spread (m) of a depth image: the RMS over a ``window`` square of
+    each pixel's difference from the mean of its 3x3 neighbours. A plane's depth is linear
+    in the pixel coordinates and its 3x3 mean is the centre's own value, so a smooth
+    surface, slanted or not, shows only the matcher's noise, while a weakly textured
+    surface (wrong matches) and a depth edge show their scatter. NaN where too few of the
+    window's pixels have a depth."""
+    import cv2
+    z = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(z)
+    filled = np.where(valid, z, 0.0)
+
+    def box(values: NDArray[np.float64], size: int) -> NDArray[np.float64]:
+        return np.asarray(cv2.blur(values, (size, size), borderType=cv2.BORDER_CONSTANT),
+                          dtype=np.float64)
+
+    weight = box(valid.astype(np.float64), 3)
+    neighbours = box(filled, 3) / np.where(weight > 0, weight, 1.0)
+    residual = np.where(valid & (weight > 0.99), filled - neighbours, 0.0)
+    counted = (valid & (weight > 0.99)).astype(np.float64)
+    count = box(counted, window)
+    mean_square = np.maximum(box(residual * residual, window), 0.0) / np.where(count > 0, count,
+                                                                                 1.0)
+    spread: NDArray[np.float64] = np.where(count >= 0.5, np.sqrt(mean_square), np.nan)
+    return spread
+
+
 def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray[np.floating],
                  P: ArrayLike, map_to_camera: tuple[Matrix3, Vector3], model: VisionModel,
-                 object_mask: Bools | None = None) -> VisionObservation:
+                 object_mask: Bools | None = None,
+                 spread: NDArray[np.floating] | None = None) -> VisionObservation:
     """The cells (rows of ``centres``, map frame, cells of edge ``resolution``) one
     exposure updates (module doc).
 
@@ -184,7 +232,9 @@ def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray
     no measurement; ``P`` the rectified left camera's 3x4 projection; ``map_to_camera``
     ``(M, b)`` with ``p_rectified = M p_map + b``. ``object_mask`` (H, W): the object's
     pixels; elsewhere (the table, the backdrop) a measurement only says that the space in
-    front of it is free (cells with mu = 0), its own surface is not the object's."""
+    front of it is free (cells with mu = 0), its own surface is not the object's.
+    ``spread`` (H, W): the measured local spread of the depth (:func:`depth_spread`),
+    raising sigma_s where it is larger; NaN there means no measurement."""
     matrix, offset = map_to_camera
     projection = np.asarray(P, dtype=np.float64).reshape(3, 4)
     height, width = depth.shape
@@ -203,6 +253,11 @@ def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray
     seen = np.isfinite(measured) & (measured > 0.0)
     on_object = (np.ones(len(candidates), dtype=bool) if object_mask is None
                  else np.asarray(object_mask, dtype=bool)[rows, columns])
+    pixel_spread = (None if spread is None
+                    else np.asarray(spread, dtype=np.float64)[rows, columns])
+    if pixel_spread is not None:
+        seen &= np.isfinite(pixel_spread)
+        pixel_spread = pixel_spread[seen]
     candidates, measured, on_object = candidates[seen], measured[seen], on_object[seen]
     # Ranges along the ray through the cell centre: the measured point on that ray is at
     # z = measured, so its range is measured * |p| / z.
@@ -214,7 +269,9 @@ def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray
                     far_side <= -model.epsilon / 2.0)
     cells, measured_range = candidates[keep], measured_range[keep]
     delta = far_side[keep]
-    return VisionObservation(cells, model.log_odds(delta, measured_range), delta,
+    if pixel_spread is not None:
+        pixel_spread = pixel_spread[keep] * cell_range[keep] / z[cells]   # z to range
+    return VisionObservation(cells, model.log_odds(delta, measured_range, pixel_spread), delta,
                              measured_range)
 
 
@@ -237,9 +294,12 @@ class VisionMap:
     def observe(self, depth: NDArray[np.floating], P: ArrayLike,
                 map_to_camera: tuple[Matrix3, Vector3], object_mask: Bools | None = None
                 ) -> VisionObservation:
-        """The exposure's updates, without applying them (:func:`observe_grid`)."""
+        """The exposure's updates, without applying them (:func:`observe_grid`, with the
+        depth's local spread when the model's ``spread_window`` is on)."""
+        window = self.model.spread_window
+        spread = depth_spread(depth, window) if window else None
         return observe_grid(self.centres, self.spec.resolution, depth, P, map_to_camera,
-                            self.model, object_mask)
+                            self.model, object_mask, spread)
 
     def integrate(self, depth: NDArray[np.floating], P: ArrayLike,
                   map_to_camera: tuple[Matrix3, Vector3], object_mask: Bools | None = None
