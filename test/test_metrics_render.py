@@ -497,6 +497,38 @@ def test_map_metrics_executable_and_bad_inputs(sessions, tmp_path):
     assert 'must be in [0, 1)' in refused(s['map'], '--truth', s['truth'], '--threshold', '1.5')
 
 
+def test_map_metrics_without_a_stereo_pair_says_so_in_one_line_each(sessions, tmp_path,
+                                                                    capsys):
+    # A session without a camera: no colours in the map, no stereo keys in the truth, no
+    # pair in the bag. Repeated --config files (the stereo rig's too) still register the
+    # points.
+    s = sessions['moving']
+    out = tmp_path / 'metrics.json'
+    code = map_metrics_main([str(s['map']), '--truth', str(s['truth']), '--bag', str(s['bag']),
+                             '--config', str(CONFIG), '--config',
+                             str(WORKSPACE / 'config' / 'stereo.yaml'), '--json', str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    notes = [line for line in printed.out.splitlines() if 'n/a (' in line]
+    assert [line.split(':')[0] for line in notes] == ['map colours', 'stereo shot'], notes
+    assert 'carries no colours' in notes[0] and 'no stereo keys' in notes[1]
+    assert 'Traceback' not in printed.err
+    document = json.loads(out.read_text())
+    assert document['colour'] is None and document['stereo'] is None
+    assert 'no colours' in document['colour_note'] and 'stereo' in document['stereo_note']
+    assert document['points']['points'] == 3 * len(s['frames'])
+    # Without --bag the shot's line asks for it; with a truth that has stereo keys (a
+    # bundled cat's, foreign to this map), it says the bag holds no pair.
+    code = map_metrics_main([str(s['map']), '--truth', str(s['truth'])])
+    printed = capsys.readouterr()
+    assert code == 0 and 'stereo shot: n/a (give --bag BAG' in printed.out
+    code = map_metrics_main([str(s['map']), '--truth',
+                             str(WORKSPACE / 'bags' / 'cat_moving.truth.npz'), '--bag',
+                             str(s['bag'])])
+    printed = capsys.readouterr()
+    assert code == 0 and f'stereo shot: n/a ({s["bag"]} holds no stereo pair)' in printed.out
+
+
 # ------------------------------------------------------------------ pictures
 
 def test_higher_probability_cubes_are_darker():

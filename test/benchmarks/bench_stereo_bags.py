@@ -5,7 +5,9 @@
 For each bundled bag: the pair and camera_infos from the bag, the true disparity from its
 truth file; density (object pixels with a disparity) and bad-2 (of those, |d - d_true| > 2 px)
 for config/stereo.yaml's setting and the alternatives it was chosen over, and bare OpenCV
-SGBM with its defaults (same disparity range), side by side.
+SGBM with its defaults (same disparity range), side by side. The scores are
+``inhand_tools.stereo_quality.disparity_scores``, which ``map_metrics`` reports for a bag's
+shot.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from inhand_common.ground_truth import load_truth
 from inhand_stereo.camera_model import CameraModel
 from inhand_stereo.image_encoding import image_to_array
 from inhand_stereo.stereo_pipeline import StereoPipeline
+from inhand_tools.stereo_quality import disparity_scores
 
 
 def load(bag: str):
@@ -54,11 +57,10 @@ VARIANTS = {
 
 
 def line(bag, name, disparity, valid, truth):
-    error = np.abs(disparity - truth.disparity)
-    on = truth.object_mask
-    print(f'{bag:14s} {name:46s} object density {valid[on].mean():.3f} bad-2 '
-          f'{(error[on & valid] > 2).mean():.4f} | image density {valid.mean():.3f} bad-2 '
-          f'{(error[valid] > 2).mean():.4f}')
+    scores = disparity_scores(disparity, valid, truth.disparity, truth.object_mask)
+    print(f'{bag:14s} {name:46s} object density {scores["object_density"]:.3f} bad-2 '
+          f'{scores["object_bad2"]:.4f} | image density {scores["image_density"]:.3f} bad-2 '
+          f'{scores["image_bad2"]:.4f}')
 
 
 def main():

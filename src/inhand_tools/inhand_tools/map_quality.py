@@ -1,7 +1,8 @@
 """How good a map is against the true surface (numpy and scipy's KD-tree only; no ROS).
 
-:func:`map_metrics` scores the cells above a threshold and :func:`point_metrics` the
-registered raw points; :func:`evaluate` does both for the cells of a map
+:func:`map_metrics` scores the cells above a threshold, :func:`point_metrics` the
+registered raw points and :func:`colour_metrics` the colours the stereo camera gave the
+cells; :func:`evaluate` does them for the cells of a map
 (:class:`~inhand_tools.map_cells.MapCells`) at several thresholds, :func:`frame_check` warns
 when the map and the truth seem to be in different frames, :func:`find_truth` finds the
 truth file of a session and :func:`metrics_table` lays the results out for people.
@@ -58,6 +59,31 @@ Definitions (metres inside, millimetres in the reported ``*_mm`` values)
 Distances to the surface are distances to the nearest sample: they overestimate the true
 distance by at most about half the sample spacing (``sample_spacing_mm`` in the results;
 about 0.3 mm for 100,000 samples on a 4 cm sphere).
+
+The map's colours (:func:`colour_metrics`)
+------------------------------------------
+For a map with colours (``MapCells.colours``, ``textured``: what the stereo node's
+``occupancy/textured`` gave the occupied cells) and a truth with ``surface_colours`` (the
+true colour of each surface sample: the *albedo*, unshaded; the camera sees albedo times
+the renderer's shading, ambient 0.35 plus Lambert and highlights, so even a right colour
+differs from the truth, mostly darker).
+
+* **Textured fraction** = textured cells / occupied cells ``A``.
+* **Seen cells** (needs ``visible``, the surface samples the left camera saw:
+  :func:`inhand_tools.stereo_quality.visible_samples`): an occupied cell holding surface
+  samples is seen when one of them is visible; a cell holding none (off the surface) when
+  its nearest sample is. **Coverage of the seen cells** = textured seen cells / seen cells;
+  **textured unseen cells** = textured cells the camera did not see (paint on hidden
+  surface: should be about 0). Judging a cell by its nearest sample alone miscounts the
+  cells on the edge of the visible surface: their centre's nearest sample may be hidden
+  while the cell holds visible surface (13 to 20 "unseen" textured cells on the bundled
+  sessions, against 2 or 3 this way).
+* **Colour error** of a textured cell = the Euclidean distance in RGB (0-441) between the
+  cell's colour and its true colour: the per-channel median of the true colours of the
+  surface samples inside the cell, or the nearest sample's colour for a cell holding none
+  (:func:`true_cell_colours`). Reported as the median and the 95th percentile over the
+  textured cells, and as a reference the median with the same colours shuffled among the
+  textured cells (a fixed seed): what a colour that belongs to another cell scores.
 """
 
 from __future__ import annotations
@@ -72,9 +98,10 @@ from scipy.spatial import cKDTree
 from inhand_common.ground_truth import GroundTruth, truth_path
 from inhand_tools.map_cells import Lattice, MapCells, cell_indices, is_bag
 
-__all__ = ['MAP_SCORE_KEYS', 'METRIC_LABELS', 'SurfaceTruth', 'evaluate', 'explored_mask',
-           'find_truth', 'format_metric', 'frame_check', 'map_metrics', 'metrics_table',
-           'point_metrics']
+__all__ = ['COLOUR_SCORE_KEYS', 'MAP_SCORE_KEYS', 'METRIC_LABELS', 'SurfaceTruth',
+           'colour_metrics', 'colour_problem', 'evaluate', 'explored_mask', 'find_truth',
+           'format_metric', 'frame_check', 'label_width', 'map_metrics', 'metrics_table',
+           'point_metrics', 'seen_cells', 'surface_truth', 'true_cell_colours']
 
 # Cell indices are packed into one int64 per cell: 20 bits per axis, offset to be positive.
 _BITS = 20
@@ -92,6 +119,13 @@ MAP_SCORE_KEYS = (
     'off_surface_cells', 'strays_far_from_surface', 'strays', 'fscore_distance_mm',
     'surface_margin_mm', 'tolerance_cells', 'explored_radius_mm', 'explored_samples',
     'surface_samples', 'contacts', 'sample_spacing_mm')
+
+# The scores of :func:`colour_metrics`, in the order of its result.
+COLOUR_SCORE_KEYS = (
+    'threshold', 'occupied_cells', 'textured_cells', 'textured_fraction', 'seen_cells',
+    'seen_textured_fraction', 'unseen_textured_cells', 'colour_cells',
+    'colour_cells_nearest_sample', 'colour_error_median', 'colour_error_p95',
+    'colour_error_shuffled_median')
 
 
 def _keys(indices: np.ndarray) -> np.ndarray:
@@ -343,6 +377,105 @@ def point_metrics(points, truth: SurfaceTruth, fscore_distance: float = 0.005) -
     }
 
 
+
+# ------------------------------------------------------------------ the map's colours
+
+def true_cell_colours(centres, lattice: Lattice, truth: SurfaceTruth, surface_colours
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The true colour of each cell (n, 3) float: the per-channel median of the true colours
+    of the surface samples inside the cell (the mean of the two middle values for an even
+    count), or the nearest sample's colour for a cell holding none; and which cells held
+    samples (n,) bool."""
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    surface_colours = np.asarray(surface_colours).reshape(-1, 3)
+    if len(surface_colours) != len(truth.points):
+        raise ValueError(f'{len(surface_colours)} surface colours for {len(truth.points)} '
+                         'surface samples')
+    cell_keys = _keys(cell_indices(centres, lattice))
+    sample_keys = _keys(cell_indices(truth.points, lattice))
+    inside = np.isin(sample_keys, cell_keys)
+    keys, values = sample_keys[inside], surface_colours[inside].astype(float)
+    result = np.empty((len(centres), 3))
+    held = np.zeros(len(centres), dtype=bool)
+    if len(keys):
+        groups, starts, counts = np.unique(np.sort(keys), return_index=True,
+                                           return_counts=True)
+        low, high = starts + (counts - 1) // 2, starts + counts // 2
+        medians = np.empty((len(groups), 3))
+        for channel in range(3):    # sorted by cell, then by this channel's value
+            ranked = values[np.lexsort((values[:, channel], keys)), channel]
+            medians[:, channel] = (ranked[low] + ranked[high]) / 2.0
+        where = np.minimum(np.searchsorted(groups, cell_keys), len(groups) - 1)
+        held = groups[where] == cell_keys
+        result[held] = medians[where[held]]
+    if not held.all():
+        _, nearest = truth.distance(centres[~held])
+        result[~held] = surface_colours[nearest]
+    return result, held
+
+
+def seen_cells(centres, lattice: Lattice, truth: SurfaceTruth, visible) -> np.ndarray:
+    """(n,) bool: the cells the camera saw, by the truth: a cell holding surface samples when
+    one of them is visible, any other cell when its nearest sample is (``visible``: (N,)
+    bool per surface sample, :func:`inhand_tools.stereo_quality.visible_samples`)."""
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    visible = np.asarray(visible, dtype=bool).reshape(-1)
+    if len(visible) != len(truth.points):
+        raise ValueError(f'{len(visible)} visibility flags for {len(truth.points)} surface '
+                         'samples')
+    if len(centres) == 0:
+        return np.zeros(0, dtype=bool)
+    cell_keys = _keys(cell_indices(centres, lattice))
+    sample_keys = _keys(cell_indices(truth.points, lattice))
+    holding = np.isin(cell_keys, sample_keys)
+    seen = np.isin(cell_keys, sample_keys[visible])
+    if not holding.all():
+        seen[~holding] = visible[truth.distance(centres[~holding])[1]]
+    return seen
+
+
+def colour_metrics(centres, probabilities, lattice: Lattice, colours, textured,
+                   truth: SurfaceTruth, surface_colours, visible=None,
+                   threshold: float = 0.8, shuffle_seed: int = 0) -> dict:
+    """The colours of the occupied cells against the truth (module doc, "The map's
+    colours"). ``colours`` (n, 3) and ``textured`` (n,) per map cell, as
+    :class:`~inhand_tools.map_cells.MapCells` holds them; ``surface_colours`` (N, 3) the
+    truth's colour per surface sample; ``visible`` (N,) bool the samples the camera saw, or
+    None (the scores of the seen cells are then None and NaN)."""
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    keep = np.asarray(probabilities, dtype=float).reshape(-1) > threshold
+    colours = np.asarray(colours).reshape(-1, 3)
+    textured = np.asarray(textured, dtype=bool).reshape(-1)
+    if not len(centres) == len(keep) == len(colours) == len(textured):
+        raise ValueError(f'{len(centres)} centres, {len(keep)} probabilities, '
+                         f'{len(colours)} colours and {len(textured)} textured flags')
+    occupied, painted = centres[keep], textured[keep]
+    scores: dict = {'threshold': float(threshold), 'occupied_cells': int(len(occupied)),
+                    'textured_cells': int(np.count_nonzero(painted)),
+                    'textured_fraction': _ratio(np.count_nonzero(painted), len(occupied)),
+                    'seen_cells': None, 'seen_textured_fraction': math.nan,
+                    'unseen_textured_cells': None}
+    if visible is not None:
+        seen = seen_cells(occupied, lattice, truth, visible)
+        scores.update(seen_cells=int(np.count_nonzero(seen)),
+                      seen_textured_fraction=_ratio(np.count_nonzero(seen & painted),
+                                                    np.count_nonzero(seen)),
+                      unseen_textured_cells=int(np.count_nonzero(painted & ~seen)))
+    mapped = colours[keep][painted].astype(float)
+    true, held = true_cell_colours(occupied[painted], lattice, truth, surface_colours)
+    error = np.linalg.norm(mapped - true, axis=1)
+    shuffled = mapped[np.random.default_rng(shuffle_seed).permutation(len(mapped))]
+    shuffled_error = np.linalg.norm(shuffled - true, axis=1)
+    count = len(error)
+    scores.update(
+        colour_cells=int(count),
+        colour_cells_nearest_sample=int(np.count_nonzero(~held)),
+        colour_error_median=float(np.median(error)) if count else math.nan,
+        colour_error_p95=float(np.percentile(error, 95)) if count else math.nan,
+        colour_error_shuffled_median=float(np.median(shuffled_error)) if count else math.nan)
+    return {key: scores[key] for key in COLOUR_SCORE_KEYS}
+
+
 # Row labels of the printed table: key -> (label, format).
 METRIC_LABELS = {
     'occupied_cells': ('occupied cells (> threshold)', '{:d}'),
@@ -367,6 +500,14 @@ METRIC_LABELS = {
     'median_to_surface_mm': ('  points -> surface, median (mm)', '{:.2f}'),
     'p95_to_surface_mm': ('  points -> surface, 95th percentile (mm)', '{:.2f}'),
     'surface_to_points_mm': ('  explored surface -> points, mean (mm)', '{:.2f}'),
+    'textured_cells': ('textured cells (coloured from the camera)', '{:d}'),
+    'textured_fraction': ('  fraction of the occupied cells', '{:.3f}'),
+    'seen_cells': ('occupied cells the camera saw (truth)', '{:d}'),
+    'seen_textured_fraction': ('  fraction of them textured', '{:.3f}'),
+    'unseen_textured_cells': ('textured cells the camera did not see', '{:d}'),
+    'colour_error_median': ('colour error, median (RGB distance 0-441)', '{:.1f}'),
+    'colour_error_p95': ('  95th percentile', '{:.1f}'),
+    'colour_error_shuffled_median': ('  median, colours shuffled among the cells', '{:.1f}'),
 }
 
 
@@ -385,19 +526,48 @@ def find_truth(truth: str | None, bag: Path | None, map_path: Path) -> Path:
                      'BAG.truth.npz beside it)')
 
 
+def surface_truth(truth: GroundTruth, explored_radius: float = 0.005) -> SurfaceTruth:
+    """The :class:`SurfaceTruth` of a truth file (in the frame it is in)."""
+    return SurfaceTruth(truth.surface_points, truth.contacts, truth.surface_normals,
+                        truth.stray_points, explored_radius)
+
+
+def colour_problem(cells: MapCells, truth: GroundTruth) -> str | None:
+    """Why the map's colours cannot be judged against ``truth``, or None."""
+    if not cells.has_colours:
+        return (f'the {cells.kind} map carries no colours; build_map colours the map of a '
+                'bag with a stereo pair when given --config config/stereo.yaml')
+    if truth.surface_colours is None:
+        where = f'{truth.path} has' if truth.path else 'the truth has'
+        return f'{where} no surface colours (a session simulated without a stereo pair)'
+    return None
+
+
 def evaluate(cells: MapCells, truth: GroundTruth, thresholds, explored_radius: float = 0.005,
-             points: np.ndarray | None = None) -> dict:
+             points: np.ndarray | None = None, *, surface: SurfaceTruth | None = None,
+             visible: np.ndarray | None = None, visible_note: str | None = None) -> dict:
     """Metrics of the map at each threshold (and of the points, if given) against
     ``truth``, which must already be in the map's frame: ``{'map': {'<threshold>':
-    scores}, 'points': scores or None}``."""
-    surface = SurfaceTruth(truth.surface_points, truth.contacts, truth.surface_normals,
-                           truth.stray_points, explored_radius)
-    results: dict = {'map': {}, 'points': None}
+    scores}, 'points': scores or None, 'colour': {'<threshold>': colour scores} or None,
+    'colour_note': why there are none, 'seen_note': visible_note}``.
+
+    ``surface``: :func:`surface_truth` of ``truth`` if already built. The colour scores
+    need the map's colours and the truth's; ``visible`` (the surface samples the camera
+    saw) adds the coverage of the seen cells, ``visible_note`` says why it is None."""
+    if surface is None:
+        surface = surface_truth(truth, explored_radius)
+    results: dict = {'map': {}, 'points': None, 'colour': None,
+                     'colour_note': colour_problem(cells, truth), 'seen_note': None}
     for threshold in thresholds:
         results['map'][f'{threshold:g}'] = map_metrics(
             cells.centres, cells.probabilities, cells.lattice, surface, threshold)
     if points is not None:
         results['points'] = point_metrics(points, surface)
+    if results['colour_note'] is None:
+        results['colour'] = {f'{threshold:g}': colour_metrics(
+            cells.centres, cells.probabilities, cells.lattice, cells.colours, cells.textured,
+            surface, truth.surface_colours, visible, threshold) for threshold in thresholds}
+        results['seen_note'] = None if visible is not None else visible_note
     return results
 
 
@@ -424,6 +594,15 @@ MAP_TABLE_KEYS = ('occupied_cells', 'explored_cells', 'iou', 'cell_precision', '
 POINT_TABLE_KEYS = ('points', 'precision_at_5mm', 'recall_at_5mm', 'fscore_at_5mm',
                     'chamfer_mm', 'points_to_surface_mm', 'median_to_surface_mm',
                     'p95_to_surface_mm', 'surface_to_points_mm')
+COLOUR_TABLE_KEYS = ('textured_cells', 'textured_fraction', 'seen_cells',
+                     'seen_textured_fraction', 'unseen_textured_cells', 'colour_error_median',
+                     'colour_error_p95', 'colour_error_shuffled_median')
+
+
+def label_width() -> int:
+    """Width of the label column of :func:`metrics_table` (and of the sections that other
+    modules append to it)."""
+    return max(len(METRIC_LABELS[k][0]) for k in METRIC_LABELS) + 2
 
 
 def format_metric(key: str, value) -> str:
@@ -436,14 +615,29 @@ def format_metric(key: str, value) -> str:
 
 def metrics_table(results: dict, column_names: list[str]) -> list[str]:
     """The lines of the table of :func:`evaluate`'s results: a row per map score, a column
-    per threshold (``column_names``), then the registered points' scores if any."""
+    per threshold (``column_names``), the map's colours (same columns) or one line saying
+    why there are none, then the registered points' scores if any."""
     columns = list(results['map'].values())
-    width = max(len(METRIC_LABELS[k][0]) for k in METRIC_LABELS) + 2
+    width = label_width()
     lines = [f'{"metric":<{width}}' + ''.join(f'{name:>12}' for name in column_names)]
     lines.append('-' * len(lines[0]))
     for key in MAP_TABLE_KEYS:
         lines.append(f'{METRIC_LABELS[key][0]:<{width}}'
                      + ''.join(f'{format_metric(key, column[key]):>12}' for column in columns))
+    colour = results.get('colour')
+    if colour is not None:
+        lines.append('')
+        lines.append(f'{"map colours (occupied cells)":<{width}}'
+                     + ''.join(f'{name:>12}' for name in column_names))
+        lines.append('-' * len(lines[0]))
+        for key in COLOUR_TABLE_KEYS:
+            lines.append(f'{METRIC_LABELS[key][0]:<{width}}' + ''.join(
+                f'{format_metric(key, column[key]):>12}' for column in colour.values()))
+        if results.get('seen_note'):
+            lines.append(f'  (seen cells: n/a: {results["seen_note"]})')
+    elif results.get('colour_note'):
+        lines.append('')
+        lines.append(f'map colours: n/a ({results["colour_note"]})')
     points = results.get('points')
     if points is not None:
         lines.append('')

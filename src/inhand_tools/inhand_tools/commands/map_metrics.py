@@ -2,6 +2,7 @@
 
     map_metrics MAP [--truth TRUTH.npz] [--bag BAG] [--threshold 0.8 ...]
                     [--frame object|tracker] [--explored-radius 0.005] [--json OUT]
+                    [--config config/mapping.yaml [--config config/stereo.yaml]]
 
 MAP is one of
   * an NPZ saved by the occupancy node (``occupancy/save``) or ``build_map``: every touched
@@ -15,7 +16,19 @@ TRUTH is the simulator's ``<bag folder>.truth.npz``; it defaults to the sidecar 
 the bag's fingertip poses through the same registration as ``build_map`` (tracked for a
 map in the object frame, static for one in the tracker frame; ``--config`` for its
 parameters). The frame defaults to the tracker frame for static sessions and the object
-frame otherwise. The metric definitions are in ``inhand_tools/map_quality.py``.
+frame otherwise.
+
+Sessions with a stereo pair: a map with colours (``build_map ... --config
+config/stereo.yaml``) and a truth with the stereo keys give the map's colour scores (how
+many occupied cells are textured, of those the camera saw, paint on cells it did not see,
+the colour error against the true albedo). ``--bag`` with a ``stereo_node`` ``camera_pose``
+among the ``--config`` files (``config/stereo.yaml``) gives the bag's first usable stereo
+shot, placed as ``build_map`` places it: its disparity against the true disparity, its
+points against the true surface, and the principal point that decides which cells the
+camera saw. A missing input leaves its rows out with one line saying why.
+
+The metric definitions are in ``inhand_tools/map_quality.py`` (the map, the points, the
+colours) and ``inhand_tools/stereo_quality.py`` (the stereo shot, the visible surface).
 
 Exit status: 0 done, 2 bad input (missing or foreign file, bad option).
 """
@@ -33,9 +46,27 @@ import numpy as np
 
 from inhand_common.cli_types import command_parser
 from inhand_common.ground_truth import FRAMES, GroundTruth, default_frame, in_frame, load_truth
+from inhand_mapping.mapping_config import load_parameters
 from inhand_tools.bag_points import BagPoints, bag_mode_for_frame, read_bag_points
+from inhand_tools.bag_stereo_shot import BagShot, read_bag_shot, stereo_config_for_map
 from inhand_tools.map_cells import MapCells, load_map
-from inhand_tools.map_quality import evaluate, find_truth, frame_check, metrics_table
+from inhand_tools.map_quality import (
+    SurfaceTruth,
+    evaluate,
+    find_truth,
+    frame_check,
+    label_width,
+    metrics_table,
+    surface_truth,
+)
+from inhand_tools.stereo_quality import (
+    principal_point,
+    shot_problem,
+    shot_scores,
+    stereo_table,
+    stereo_truth_problem,
+    visible_samples,
+)
 
 __all__ = ['EXIT_BAD_INPUT', 'main']
 
@@ -60,8 +91,11 @@ def _parser() -> argparse.ArgumentParser:
                         'explored (default 0.005)')
     parser.add_argument('--resolution', type=float, metavar='M',
                         help='cell size (m) of a PLY or cloud map (default: inferred)')
-    parser.add_argument('--config', help='ROS parameter file for the registration of --bag '
-                        '(registration_node section; default: the node defaults)')
+    parser.add_argument('--config', action='append', default=[],
+                        help='ROS parameter file for --bag: its registration_node section '
+                        'registers the points, a stereo_node section (config/stereo.yaml, '
+                        'camera_pose) places its stereo pair; repeatable, later files '
+                        'override earlier ones (default: the node defaults)')
     parser.add_argument('--json', type=Path, metavar='OUT', help='also write the results here')
     return parser
 
@@ -78,13 +112,32 @@ def _check_options(args: argparse.Namespace) -> None:
 
 @dataclass
 class _Inputs:
-    """What is scored: the map, the truth (in the map's frame) and the bag's points."""
+    """What is scored: the map, the truth (in the map's frame), the bag's points and its
+    stereo shot (or why there is none)."""
 
     cells: MapCells
     truth_path: Path
     truth: GroundTruth
     frame: str
     points: BagPoints | None
+    shot: BagShot | None = None
+    shot_note: str | None = None
+
+
+def _read_shot(bag: Path | None, configs: list[str], mode: str, truth: GroundTruth
+               ) -> tuple[BagShot | None, str | None]:
+    """The bag's first usable stereo shot, placed as build_map places it (registration mode
+    of the map's frame), or None and why (one line)."""
+    if bag is None:
+        return None, 'give --bag BAG (and --config config/stereo.yaml) for its stereo pair'
+    problem = stereo_truth_problem(truth)
+    if problem:
+        return None, problem
+    registration, occupancy = load_parameters(configs, {'mode': mode})
+    shot, why = read_bag_shot(bag, stereo_config_for_map(configs, registration, occupancy))
+    if shot is None:
+        return None, why or f'{bag} holds no stereo pair'
+    return shot, shot_problem(shot, truth)
 
 
 def _load_inputs(args: argparse.Namespace) -> _Inputs:
@@ -96,7 +149,25 @@ def _load_inputs(args: argparse.Namespace) -> _Inputs:
     points = None
     if args.bag is not None:
         points = read_bag_points(args.bag, bag_mode_for_frame(frame), args.config)
-    return _Inputs(cells, truth_path, truth, frame, points)
+    shot, note = _read_shot(args.bag, args.config, bag_mode_for_frame(frame), truth)
+    return _Inputs(cells, truth_path, truth, frame, points, None if note else shot, note)
+
+
+def _evaluate(args: argparse.Namespace, inputs: _Inputs) -> dict:
+    """evaluate()'s results, the visible surface from the shot, and the shot's scores."""
+    surface: SurfaceTruth = surface_truth(inputs.truth, args.explored_radius)
+    visible = None
+    if inputs.shot is not None:
+        visible = visible_samples(inputs.truth, principal_point(inputs.shot),
+                                  inputs.cells.lattice.resolution)
+    results = evaluate(inputs.cells, inputs.truth, args.threshold, args.explored_radius,
+                       None if inputs.points is None else inputs.points.registered,
+                       surface=surface, visible=visible,
+                       visible_note=f'no stereo shot: {inputs.shot_note}')
+    results['stereo'] = None if inputs.shot is None else shot_scores(inputs.shot, inputs.truth,
+                                                                      surface)
+    results['stereo_note'] = inputs.shot_note
+    return results
 
 
 def _print_summary(args: argparse.Namespace, inputs: _Inputs, results: dict) -> None:
@@ -151,7 +222,10 @@ def _write_json(args: argparse.Namespace, inputs: _Inputs, results: dict) -> Non
                 'truth': str(inputs.truth_path), 'frame': inputs.frame,
                 'bag': None if args.bag is None else str(args.bag),
                 'explored_radius_mm': args.explored_radius * 1000,
-                'thresholds': results['map'], 'points': results['points']}
+                'thresholds': results['map'], 'points': results['points'],
+                'colour': results['colour'], 'colour_note': results['colour_note'],
+                'seen_note': results['seen_note'], 'stereo': results['stereo'],
+                'stereo_note': results['stereo_note']}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(_jsonable(document), indent=2) + '\n')
 
@@ -164,11 +238,14 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as error:  # ParameterError and BagError are ValueErrors
         print(f'{PROG}: {error}', file=sys.stderr)
         return EXIT_BAD_INPUT
-    results = evaluate(inputs.cells, inputs.truth, args.threshold, args.explored_radius,
-                       None if inputs.points is None else inputs.points.registered)
+    results = _evaluate(args, inputs)
     _print_summary(args, inputs, results)
     print()
     print('\n'.join(metrics_table(results, [f'map > {t:g}' for t in args.threshold])))
+    stereo = stereo_table(results['stereo'], results['stereo_note'], label_width())
+    if stereo:
+        print()
+        print('\n'.join(stereo))
     if args.json:
         try:
             _write_json(args, inputs, results)
