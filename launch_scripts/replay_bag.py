@@ -77,16 +77,20 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
     print(f'[launch] graph stopped after {time.monotonic() - started:.1f} s', flush=True)
     npz = output / f'{name}.npz'
     truth = truth_path(bag)
+    # the same parameter files as the nodes: the registration of --bag, the rig's camera_pose
+    configs = ['--config', str(config)] + (['--config', str(stereo)] if stereo else [])
     with ProcessGroup() as group:
         if render:
-            args = ['render_map', str(npz), '--bag', str(bag), '--output', str(output)]
+            args = ['render_map', str(npz), '--bag', str(bag), '--output', str(output),
+                    *configs]
             if truth.exists():
                 args += ['--truth', str(truth)]
             if group.run('render', args) != 0:
                 return 1
         if truth.exists():
             if group.run('metrics', ['map_metrics', str(npz), '--truth', str(truth), '--bag',
-                                     str(bag), '--json', str(output / f'{name}.metrics.json')]):
+                                     str(bag), *configs, '--json',
+                                     str(output / f'{name}.metrics.json')]):
                 return 1
     print(f'[launch] done: map, pictures and metrics are in {output}/', flush=True)
     return 0

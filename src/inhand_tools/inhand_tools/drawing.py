@@ -15,7 +15,9 @@
   a correct order). Geometry is computed for all cells at once; only the polygon fills
   loop over cells. Probability sets the colour, darker = more probable (as in the
   paper); each visible face gets its own light so the cubes read as 3-D.
-* Points are splats with a z-buffer (nearest wins), vectorised.
+* Points are splats with a z-buffer (nearest wins), vectorised; over cubes
+  (:func:`render_cells_and_points`) they start from the cubes' depths, so the cubes hide
+  what lies behind them. A photograph becomes a panel with :func:`image_panel`.
 * Everything is drawn at twice the size and shrunk (anti-aliasing); labels are drawn at
   the final size.
 """
@@ -30,8 +32,9 @@ import numpy as np
 
 __all__ = ['BACKGROUND', 'OBLIQUE', 'SIDE', 'TOP', 'UP_AXES', 'Camera', 'View', 'ViewBox',
            'annotate', 'bounds_of', 'box_of', 'default_margin', 'grid_figure', 'hstack',
-           'key_legend', 'outside_note', 'probability_colours', 'probability_legend',
-           'render_cells', 'render_points', 'robust_box', 'titled']
+           'image_panel', 'key_legend', 'outside_note', 'probability_colours',
+           'probability_legend', 'render_cells', 'render_cells_and_points', 'render_points',
+           'robust_box', 'titled']
 
 BACKGROUND = (255, 255, 255)
 SUPERSAMPLE = 2
@@ -296,11 +299,37 @@ def render_cells(camera: Camera, centres, resolution: float, colours,
                  edges: bool = True) -> np.ndarray:
     """Cubes of edge ``resolution`` at ``centres`` (data frame), ``colours`` BGR (n, 3) or
     one colour; returns a ``camera.size`` square BGR image."""
+    image, _ = _draw_cells(camera, centres, resolution, colours, edges)
+    return _shrink(image, camera.size)
+
+
+def render_cells_and_points(camera: Camera, centres, resolution: float, cell_colours,
+                            points, point_colours, radius_px: float = 1.5,
+                            depth_cue: float = 0.0, tolerance: float | None = None
+                            ) -> np.ndarray:
+    """Cubes (as :func:`render_cells`) with points (as :func:`render_points`) over them,
+    hidden where a cube is in front: a point is drawn unless the cube pictured there has
+    its centre more than ``tolerance`` (m, default one cell edge) nearer the camera, so
+    the points on the cubes' surface show and those behind the object do not."""
+    image, cell_depth = _draw_cells(camera, centres, resolution, cell_colours, True,
+                                    with_depth=True)
+    tolerance = resolution if tolerance is None else tolerance
+    _splat_points(image, cell_depth - tolerance, camera, points, point_colours, radius_px,
+                  depth_cue)
+    return _shrink(image, camera.size)
+
+
+def _draw_cells(camera: Camera, centres, resolution: float, colours, edges: bool,
+                with_depth: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """The cubes at the supersampled size: (BGR image, and with ``with_depth`` the depth
+    of the nearest cube's centre at every pixel (-inf where there is none))."""
     factor = SUPERSAMPLE
     image = _blank(camera.size * factor)
+    depth_image = (np.full(image.shape[:2], -np.inf, dtype=np.float32) if with_depth
+                   else None)
     centres = np.asarray(centres, dtype=float).reshape(-1, 3)
     if len(centres) == 0:
-        return _shrink(image, camera.size)
+        return image, depth_image
     colours = np.broadcast_to(np.asarray(colours, dtype=float).reshape(-1, 3),
                               (len(centres), 3))
     # Visible faces: the same for every cube in an orthographic view.
@@ -312,7 +341,8 @@ def render_cells(camera: Camera, centres, resolution: float, colours,
         if facing[2] > 1e-3:
             faces.append(corners)
             shades.append(0.55 + 0.45 * max(0.0, float(facing @ _LIGHT)))
-    order = np.argsort(camera.project(centres)[1], kind='stable')  # far first
+    depths = camera.project(centres)[1]
+    order = np.argsort(depths, kind='stable')  # far first
     corners = (centres[order, None, :] + _CUBE_CORNERS[None] * resolution).reshape(-1, 3)
     pixels, _ = camera.project(corners, factor)
     shift = 4  # fixed-point sub-pixel bits for OpenCV
@@ -322,6 +352,11 @@ def render_cells(camera: Camera, centres, resolution: float, colours,
     face_colours = np.clip(face_colours, 0, 255).astype(np.uint8).tolist()
     edge_colours = np.clip(colours[order] * 0.55, 0, 255).astype(np.uint8).tolist()
     thickness = max(1, factor // 2)
+    if with_depth:
+        # A cube's outline: the same corners for every cube (orthographic view).
+        hull = cv2.convexHull(pixels[0].astype(np.float32), returnPoints=False).ravel()
+        outlines = np.ascontiguousarray(pixels[:, hull])
+        cube_depths = depths[order].tolist()
     for index in range(len(centres)):
         quads = polygons[index]
         for face in range(len(faces)):
@@ -329,21 +364,33 @@ def render_cells(camera: Camera, centres, resolution: float, colours,
         if edges:
             cv2.polylines(image, list(quads), True, edge_colours[index], thickness,
                           cv2.LINE_8, shift)
-    return _shrink(image, camera.size)
+        if with_depth:
+            cv2.fillConvexPoly(depth_image, outlines[index], cube_depths[index], cv2.LINE_8,
+                               shift)
+    return image, depth_image
 
 
 def render_points(camera: Camera, points, colours, radius_px: float = 1.5,
                   depth_cue: float = 0.45) -> np.ndarray:
     """Points as round splats, nearest on top; colours BGR (n, 3) or one colour. Far
     points are blended towards the background by up to ``depth_cue``."""
+    image = _blank(camera.size * SUPERSAMPLE)
+    _splat_points(image, np.full(image.shape[:2], -np.inf), camera, points, colours,
+                  radius_px, depth_cue)
+    return _shrink(image, camera.size)
+
+
+def _splat_points(image: np.ndarray, best: np.ndarray, camera: Camera, points, colours,
+                  radius_px: float, depth_cue: float) -> None:
+    """Draw the points' splats into ``image`` (supersampled) where they are nearer than
+    ``best`` (the depth already there, per pixel; updated)."""
     factor = SUPERSAMPLE
     size = camera.size * factor
-    image = _blank(size)
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     finite = np.all(np.isfinite(points), axis=1)
     points = points[finite]
     if len(points) == 0:
-        return _shrink(image, camera.size)
+        return
     colours = np.broadcast_to(np.asarray(colours, dtype=float).reshape(-1, 3),
                               (len(finite), 3))[finite]
     pixels, depth = camera.project(points, factor)
@@ -369,7 +416,6 @@ def render_points(camera: Camera, points, colours, radius_px: float = 1.5,
     centre_colour = centre_colour.reshape(size, size, 3)
     radius = max(radius_px * factor, 0.5)
     r = int(math.ceil(radius))
-    best = np.full((size, size), -np.inf)
     for dx in range(-r, r + 1):
         for dy in range(-r, r + 1):
             if dx * dx + dy * dy > radius * radius + 0.25:
@@ -384,7 +430,6 @@ def render_points(camera: Camera, points, colours, radius_px: float = 1.5,
             nearer = source > target
             target[nearer] = source[nearer]
             image[ys, xs][nearer] = centre_colour[ys_src, xs_src][nearer]
-    return _shrink(image, camera.size)
 
 
 def _text(image, text, origin, scale=0.5, colour=TEXT, thickness=1) -> None:
@@ -452,6 +497,29 @@ def annotate(image: np.ndarray, camera: Camera, title: str | None = None,
               (110, 110, 110))
     cv2.rectangle(image, (0, 0), (size - 1, size - 1), (205, 205, 205), 1)
     return image
+
+
+def image_panel(image: np.ndarray, size: int, title: str | None = None,
+                subtitle: str | None = None) -> np.ndarray:
+    """A photograph (BGR) as a panel ``size`` pixels high, titled like :func:`annotate`'s
+    panels: the image scaled (aspect kept) to the height left under the title and
+    subtitles, as wide as that makes it."""
+    top = int(min(64.0, 0.3 * size))
+    side = max(4, int(0.03 * size))
+    height = size - top - side
+    scale = height / image.shape[0]
+    width = max(1, int(round(image.shape[1] * scale)))
+    scaled = cv2.resize(np.ascontiguousarray(image), (width, height),
+                        interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    panel = np.full((size, width + 2 * side, 3), BACKGROUND, dtype=np.uint8)
+    panel[top:top + height, side:side + width] = scaled
+    if title:
+        _text(panel, title, (10, 22), 0.6, TEXT, 1)
+    for line, text in enumerate((subtitle or '').split('\n')):
+        if text:
+            _text(panel, text, (10, 42 + 17 * line), 0.45, (90, 90, 90))
+    cv2.rectangle(panel, (0, 0), (panel.shape[1] - 1, size - 1), (205, 205, 205), 1)
+    return panel
 
 
 def hstack(images: list[np.ndarray]) -> np.ndarray:

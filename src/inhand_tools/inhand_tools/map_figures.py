@@ -1,4 +1,4 @@
-"""The PNG pictures of a map like the paper's figures 4, 5 and 8 (over :mod:`drawing`).
+"""The PNG pictures of a map like the paper's figures 4-8 (over :mod:`drawing`).
 
 Written to one folder, each picture an oblique and a side view (orthographic, scale bar in
 cm, the data frame's axes drawn in the corner):
@@ -11,14 +11,26 @@ cm, the data frame's axes drawn in the corner):
   regions.png            most explored cells (top hit counts) and the first touched cells
   truth.png              the true surface, its explored part and the stray points (needs
                          the truth)
-  figure.png             every picture's oblique view in one figure
+  stereo_points.png      the bag's stereo points in the colours of the image, map frame,
+                         and the rectified left image, the extracted texture (paper's
+                         fig. 6; needs a :class:`StereoCloud`)
+  textured_map.png       the occupied map (cells above the highest threshold), each
+                         textured cell in its camera colour, the others neutral grey
+                         (paper's fig. 6; needs a map with colours)
+  texture_registration.png  the stereo points over the occupied cells, both in the map
+                         frame: do they register? (paper's fig. 7; needs a StereoCloud)
+  figure.png             every picture's oblique view in one figure (not the
+                         registration's)
 
 One function draws each picture (:func:`draw_raw_points`, :func:`draw_registered_points`,
-:func:`draw_map_above`, :func:`draw_map_thresholds`, :func:`draw_regions`,
+:func:`draw_stereo_points`, :func:`draw_map_above`, :func:`draw_map_thresholds`,
+:func:`draw_textured_map`, :func:`draw_texture_registration`, :func:`draw_regions`,
 :func:`draw_truth`, :func:`draw_overview`), sharing a :class:`MapScene`: the cells, the
 view box and cameras of the map-frame panels, the output folder and the pictures written;
 each returns its panels for the overview. :func:`draw_all` draws every picture the inputs
 allow.
+
+The map's and the camera's colours are RGB; OpenCV draws BGR: they are flipped here.
 
 Every panel is framed on the object, not on everything the fingertips went through (they
 travel far off the object between strokes and during re-grasps): all map-frame panels show
@@ -28,8 +40,10 @@ falls outside a panel is not drawn and its subtitle says how much.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -38,13 +52,17 @@ from inhand_common.ground_truth import GroundTruth
 from inhand_tools import drawing
 from inhand_tools.bag_points import BagPoints
 from inhand_tools.drawing import OBLIQUE, SIDE, Camera, View
-from inhand_tools.map_cells import MapCells
+from inhand_tools.map_cells import Lattice, MapCells, cell_indices
 from inhand_tools.map_quality import explored_mask
 
-__all__ = ['FINGER_COLOURS', 'FRAME_LABELS', 'MapScene', 'default_up', 'draw_all',
-           'draw_map_above', 'draw_map_thresholds', 'draw_overview', 'draw_raw_points',
-           'draw_regions', 'draw_registered_points', 'draw_truth', 'map_view_box',
-           'raw_view_box', 'regions']
+if TYPE_CHECKING:
+    from inhand_tools.bag_stereo_shot import BagShot
+
+__all__ = ['FINGER_COLOURS', 'FRAME_LABELS', 'MapScene', 'StereoCloud', 'default_up',
+           'draw_all', 'draw_map_above', 'draw_map_thresholds', 'draw_overview',
+           'draw_raw_points', 'draw_regions', 'draw_registered_points', 'draw_stereo_points',
+           'draw_texture_registration', 'draw_textured_map', 'draw_truth', 'map_view_box',
+           'near_cells', 'raw_view_box', 'regions']
 
 # BGR: orange, blue, green, purple, brown (fingers in finger_names order).
 FINGER_COLOURS = np.array([[28, 127, 255], [180, 119, 31], [44, 160, 44], [189, 103, 148],
@@ -55,6 +73,8 @@ BASE_COLOUR = (205, 205, 205)      # light grey
 STRAY_COLOUR = (40, 40, 215)       # red
 SURFACE_COLOUR = (200, 200, 200)
 EXPLORED_SURFACE_COLOUR = (80, 150, 60)
+UNTEXTURED_COLOUR = (178, 178, 178)  # neutral grey: a cell the camera did not see
+REGISTRATION_CELL_COLOUR = (215, 215, 215)
 FRAME_LABELS = {'object': 'object frame', 'tracker': 'tracker frame (polhemus_source)',
                 None: 'map frame'}
 TRUTH_POINTS = 60000  # at most about this many surface samples are drawn
@@ -128,6 +148,58 @@ def regions(hits, first_touch, top_fraction: float = 0.1, first_fraction: float 
     return most, first, hit_cut, first_cut
 
 
+def near_cells(points, centres, resolution: float) -> np.ndarray:
+    """Mask of the points in a cell of ``centres`` (a lattice of edge ``resolution``) or in
+    one of its 26 neighbours: within one cell of the map."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    if len(points) == 0 or len(centres) == 0:
+        return np.zeros(len(points), dtype=bool)
+    lattice = Lattice(resolution, tuple(float(v) for v in centres[0] - resolution / 2.0))
+    cells = cell_indices(centres, lattice)
+    offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing='ij'), -1).reshape(-1, 3)
+    near = (cells[:, None, :] + offsets[None]).reshape(-1, 3)
+    low = near.min(axis=0)
+    span = near.max(axis=0) - low + 1
+
+    def keys(indices):
+        indices = indices - low
+        inside = np.all((indices >= 0) & (indices < span), axis=1)
+        flat = (indices[:, 0] * span[1] + indices[:, 1]) * span[2] + indices[:, 2]
+        return np.where(inside, flat, -1)
+    return np.isin(keys(cell_indices(points, lattice)), np.unique(keys(near)))
+
+
+@dataclass
+class StereoCloud:
+    """What the stereo pictures show of a bag's stereo shot: its points in the map frame
+    (N, 3), their colours (N, 3) uint8 RGB, the rectified left image (H, W, 3) uint8 RGB
+    (the extracted texture, or None), how many usable pairs the bag held and where the
+    left camera was in the map frame (or None)."""
+
+    points: np.ndarray
+    colours: np.ndarray
+    image: np.ndarray | None = None
+    pairs: int = 1
+    camera_centre: np.ndarray | None = None
+
+    @classmethod
+    def of_shot(cls, shot: BagShot) -> StereoCloud:
+        """The first usable shot of a bag (:func:`inhand_tools.bag_stereo_shot.read_bag_shot`)."""
+        points, colours = shot.points()
+        # p_rectified = M p_map + b: the camera (p_rectified = 0) is at -M^T b (M a rotation).
+        matrix, offset = shot.placed.map_to_camera(shot.config.camera_pose)
+        return cls(np.asarray(points, dtype=float).reshape(-1, 3),
+                   np.asarray(colours, dtype=np.uint8).reshape(-1, 3),
+                   shot.placed.shot.left_rgb, len(shot.pairs.placed),
+                   -np.asarray(matrix, dtype=float).T @ np.asarray(offset, dtype=float))
+
+    @property
+    def bgr(self) -> np.ndarray:
+        """The points' colours for OpenCV: (N, 3) float BGR."""
+        return self.colours[:, ::-1].astype(float)
+
+
 # ------------------------------------------------------------------ what the pictures share
 
 @dataclass
@@ -168,6 +240,11 @@ class MapScene:
         """The camera of a map-frame panel."""
         return Camera.for_box(view, self.box, self.size, self.up)
 
+    @property
+    def occupied_threshold(self) -> float:
+        """The occupied map's threshold: the highest of the pictures' (0.8 if none)."""
+        return max(self.thresholds) if self.thresholds else 0.8
+
     def probability_legend(self, width: int) -> np.ndarray:
         return drawing.probability_legend(width, tuple(t for t in self.thresholds
                                                        if 0 < t < 1))
@@ -204,6 +281,32 @@ def _views(draw, camera_for, frame_label: str, first_line: str | None = None,
         panels.append(drawing.annotate(image, camera, title or view.name,
                                        _lines(first_line, note), frame_label))
     return panels
+
+
+def _view_from(scene: MapScene, direction, name: str) -> View | None:
+    """The view looking at the scene from ``direction`` (data frame, towards the viewer),
+    or None for no direction."""
+    direction = np.asarray(direction, dtype=float).reshape(3)
+    length = float(np.linalg.norm(direction))
+    if not math.isfinite(length) or length < 1e-9:
+        return None
+    shown = drawing.UP_AXES[scene.up] @ (direction / length)  # display coordinates
+    elevation = math.degrees(math.asin(float(np.clip(shown[2], -1.0, 1.0))))
+    return View(name, math.degrees(math.atan2(shown[1], shown[0])),
+                float(np.clip(elevation, -89.0, 89.0)))
+
+
+def _camera_side(scene: MapScene, camera_centre, centres=None, textured=None
+                 ) -> View | None:
+    """The view from the stereo camera (``camera_centre``, map frame) if known, else from
+    the side the textured cells are on (from the occupied cells' centroid to theirs)."""
+    if camera_centre is not None:
+        return _view_from(scene, np.asarray(camera_centre, float) - scene.box.centre,
+                          'from the stereo camera')
+    if centres is None or textured is None or not np.any(textured):
+        return None
+    return _view_from(scene, centres[textured].mean(axis=0) - centres.mean(axis=0),
+                      'from the textured side')
 
 
 def _shown(camera: Camera, box: drawing.ViewBox, points, inset: float = 0.0) -> np.ndarray:
@@ -291,6 +394,108 @@ def draw_registered_points(scene: MapScene, points: BagPoints) -> list:
     return _views(draw, scene.camera, scene.frame_label,
                   f'{len(registered):,} points, {points.mode} registration', (OBLIQUE,),
                   'registered points')
+
+
+def draw_stereo_points(scene: MapScene, stereo: StereoCloud) -> list:
+    """stereo_points.png: the stereo shot's points in the colours of the image, in the map
+    frame and the map's view box (oblique and side views), and the rectified left image
+    (the extracted texture) scaled to the panel height; returns its overview panel."""
+    points, colours = stereo.points, stereo.bgr
+    radius_px = _splat_radius(np.count_nonzero(scene.box.contains(points)))
+    count = f'{len(points):,} stereo points'
+
+    def draw(camera):
+        shown = _shown(camera, scene.box, points)
+        return (drawing.render_points(camera, points[shown], colours[shown], radius_px, 0.15),
+                _outside(shown, 'points'))
+
+    panels = _views(draw, scene.camera, scene.frame_label, f'{count}, camera colours')
+    if stereo.image is not None and stereo.image.ndim == 3 and stereo.image.size:
+        height, width = stereo.image.shape[:2]
+        panels.append(drawing.image_panel(
+            np.ascontiguousarray(stereo.image[..., ::-1]), scene.size, 'extracted texture',
+            f'rectified left image, {width} x {height} px'))
+    pairs = f'first of {stereo.pairs} usable pairs' if stereo.pairs > 1 else 'one stereo pair'
+    scene.save('stereo_points.png', drawing.titled(
+        drawing.hstack(panels), f'Stereo points in the colours of the image ({len(points):,} '
+        f'points, {pairs}, {scene.frame_label})'))
+    return _views(draw, scene.camera, scene.frame_label, count, (OBLIQUE,), 'stereo points')
+
+
+def draw_textured_map(scene: MapScene, camera_centre=None) -> list:
+    """textured_map.png: the occupied map (cells above the highest threshold), each
+    textured cell in its camera colour and the others neutral grey: oblique and side
+    views, and the view from the stereo camera (``camera_centre``, map frame; else from
+    the side the textured cells are on); returns its overview panel (oblique). Needs a
+    map with colours."""
+    cells = scene.cells
+    if not cells.has_colours:
+        raise ValueError('the map has no colours')
+    threshold = scene.occupied_threshold
+    keep = cells.probabilities > threshold
+    textured = cells.textured[keep]
+    colours = np.where(textured[:, None], cells.colours[keep][:, ::-1].astype(float),
+                       np.array(UNTEXTURED_COLOUR, dtype=float))
+    draw = scene.cell_drawer(cells.centres[keep], colours)
+    note = f'{np.count_nonzero(textured)} of {np.count_nonzero(keep)} cells textured'
+    views = [OBLIQUE, SIDE]
+    towards = _camera_side(scene, camera_centre, cells.centres[keep], textured)
+    if towards is not None:
+        views.append(towards)
+    panels = _views(draw, scene.camera, scene.frame_label, note, views)
+    keys = [(UNTEXTURED_COLOUR, 'grey: untextured (not seen by the stereo camera)')]
+    if textured.any():
+        typical = np.median(colours[textured], axis=0)
+        keys.insert(0, (tuple(int(c) for c in typical), 'textured: the colour of the cell '
+                                                        'in the camera image'))
+    scene.save('textured_map.png', drawing.titled(
+        drawing.hstack(panels), f'Textured map: cells with probability > {threshold:g} in '
+        f'the camera colours ({note})', drawing.key_legend(scene.size * len(panels), keys)))
+    return _views(draw, scene.camera, scene.frame_label, note, (OBLIQUE,),
+                  f'textured map, p > {threshold:g}')
+
+
+def draw_texture_registration(scene: MapScene, stereo: StereoCloud) -> list:
+    """texture_registration.png: the stereo points (camera colours) over the occupied
+    cells (light grey), both in the map frame, oblique and side views and the view from
+    the stereo camera (if known); the cells hide the points behind them. The subtitle says
+    how many of the points in the view box lie within one cell of an occupied cell (a
+    table or backdrop in the box counts against it). No overview panel (returns [])."""
+    cells = scene.cells
+    threshold = scene.occupied_threshold
+    keep = cells.probabilities > threshold
+    centres = cells.centres[keep]
+    resolution = cells.lattice.resolution
+    points, colours = stereo.points, stereo.bgr
+    in_box = scene.box.contains(points)
+    radius_px = _splat_radius(np.count_nonzero(in_box))
+    near = near_cells(points[in_box], centres, resolution)
+    cell_box = scene.box.grown(resolution / 2.0)
+
+    def draw(camera):
+        cell_shown = _shown(camera, cell_box, centres, 0.6 * resolution * camera.scale)
+        shown = _shown(camera, scene.box, points)
+        image = drawing.render_cells_and_points(
+            camera, centres[cell_shown], resolution, REGISTRATION_CELL_COLOUR, points[shown],
+            colours[shown], radius_px)
+        return image, _outside(shown, 'points')
+
+    share = (f'{np.count_nonzero(near) / len(near):.0%} of the {len(near):,} points in the '
+             f'box within a cell of the map' if len(near) else 'no stereo point in the box')
+    views = [OBLIQUE, SIDE]
+    towards = _camera_side(scene, stereo.camera_centre)
+    if towards is not None:
+        views.append(towards)
+    panels = _views(draw, scene.camera, scene.frame_label, share, views)
+    keys = [(REGISTRATION_CELL_COLOUR, f'map, p > {threshold:g} ({len(centres)} cells)'),
+            ((60, 110, 150), 'stereo points in the colours of the image')]
+    if len(points):
+        keys[1] = (tuple(int(c) for c in np.median(colours[in_box] if in_box.any()
+                                                   else colours, axis=0)), keys[1][1])
+    scene.save('texture_registration.png', drawing.titled(
+        drawing.hstack(panels), f'Registration of the stereo data and the map '
+        f'({scene.frame_label})', drawing.key_legend(scene.size * len(panels), keys)))
+    return []
 
 
 def draw_map_above(scene: MapScene, threshold: float) -> list:
@@ -392,7 +597,7 @@ def draw_truth(scene: MapScene, truth: GroundTruth) -> list:
 
 def draw_overview(scene: MapScene, panels: list, title: str) -> None:
     """figure.png: every picture's oblique view (``panels``) in one figure."""
-    columns = {1: 1, 2: 2, 3: 3, 4: 2, 5: 3, 6: 3}.get(len(panels), 4)
+    columns = {1: 1, 2: 2, 3: 3, 4: 2, 5: 3, 6: 3, 9: 3}.get(len(panels), 4)
     scene.save('figure.png', drawing.grid_figure(panels, columns, title,
                                                  scene.probability_legend(scene.size * columns)))
 
@@ -401,11 +606,13 @@ def draw_all(cells: MapCells, output: Path, thresholds, bag_points: BagPoints | 
              truth: GroundTruth | None = None, frame: str | None = None, *,
              up: str | None = None, size: int = 480, top_fraction: float = 0.1,
              first_fraction: float = 0.1, name: str = 'map',
-             raw_up: str | None = None) -> list[Path]:
+             raw_up: str | None = None, stereo: StereoCloud | None = None) -> list[Path]:
     """Every picture of the module docstring that the inputs allow; returns the paths.
 
     ``up``: the map frame's up axis (default :func:`default_up` of ``frame``); ``raw_up``:
-    the tracker frame's, for the raw points (default -z, or ``up`` for a tracker-frame map).
+    the tracker frame's, for the raw points (default -z, or ``up`` for a tracker-frame map);
+    ``stereo``: the bag's stereo shot in the map frame (stereo_points.png and
+    texture_registration.png). textured_map.png is drawn when the map has colours.
     """
     scene = MapScene.create(cells, output, thresholds, truth, frame, up, size)
     overview: list[np.ndarray] = []
@@ -414,10 +621,22 @@ def draw_all(cells: MapCells, output: Path, thresholds, bag_points: BagPoints | 
                                     raw_up or (scene.up if frame == 'tracker' else '-z'))
     if bag_points is not None and len(bag_points.registered):
         overview += draw_registered_points(scene, bag_points)
+    if stereo is not None:
+        overview += draw_stereo_points(scene, stereo)
     overview += draw_map_thresholds(scene)
+    if cells.has_colours:
+        overview += draw_textured_map(
+            scene, None if stereo is None else stereo.camera_centre)
+    if stereo is not None:
+        overview += draw_texture_registration(scene, stereo)
     overview += draw_regions(scene, top_fraction, first_fraction)
     if truth is not None:
         overview += draw_truth(scene, truth)
-    draw_overview(scene, overview, f'{name}: raw data, registration and probabilistic map'
-                  if bag_points is not None else f'{name}: probabilistic map')
+    what = ['probabilistic map']
+    if cells.has_colours or stereo is not None:
+        what.append('texture')
+    if bag_points is not None:
+        what[:0] = ['raw data', 'registration']
+    draw_overview(scene, overview, f'{name}: {", ".join(what[:-1])} and {what[-1]}'
+                  if len(what) > 1 else f'{name}: {what[0]}')
     return scene.written

@@ -1,6 +1,7 @@
-"""``render_map``: PNG pictures of a map like the paper's figures 4, 5 and 8.
+"""``render_map``: PNG pictures of a map like the paper's figures 4-8.
 
-    render_map MAP [--bag BAG] [--truth TRUTH.npz] --output DIR
+    render_map MAP [--bag BAG [--config config/mapping.yaml [--config config/stereo.yaml]]]
+               [--truth TRUTH.npz] --output DIR
                [--thresholds 0 0.6 0.8] [--frame object|tracker] [--up z]
                [--size 480] [--top-fraction 0.1] [--first-fraction 0.1]
 
@@ -16,7 +17,17 @@ scale bar in cm, the data frame's axes drawn in the corner):
   regions.png            most explored cells (top hit counts) and the first touched cells
   truth.png              the true surface, its explored part and the stray points (needs
                          the truth: --truth or the bag's BAG.truth.npz sidecar)
-  figure.png             every picture's oblique view in one figure
+  stereo_points.png      the stereo points of the bag's first usable stereo pair in the
+                         colours of the image, map frame, and the rectified left image (the
+                         extracted texture; paper's fig. 6). Needs a bag with a stereo pair
+                         and the rig's camera_pose (--config config/stereo.yaml)
+  textured_map.png       the occupied map (cells above the highest threshold), textured
+                         cells in their camera colours, the others grey; "N of M cells
+                         textured" (paper's fig. 6). Needs a map with colours (build_map or
+                         the occupancy node with the stereo pair)
+  texture_registration.png  the stereo points over the occupied cells: they register
+                         (paper's fig. 7). Needs what stereo_points.png needs
+  figure.png             every picture's oblique view in one figure (not the registration)
 
 Each view is SIZE pixels square (two views side by side: 2 x SIZE wide). Every panel is
 framed on the object, not on everything the fingertips went through (they travel far off
@@ -25,8 +36,13 @@ the truth's surface with a margin (else the map's confident cells, robustly), an
 points their own (where most of them are); what falls outside a panel is not drawn and its
 subtitle says how much ("+ 812 points outside the view"). The "up" axis of the map's
 pictures is +z in the object frame (the simulator's objects stand on their +z) and -z in
-the tracker frame (its z points down; also the raw points' up); --up overrides it. The
-paths written are printed. Exit status: 0 done, 2 bad input.
+the tracker frame (its z points down; also the raw points' up); --up overrides it.
+
+--config (repeatable, later files overriding earlier ones) gives the ROS parameter files the
+bag is registered and its stereo pair processed with, as build_map takes them. Stereo
+pictures that the inputs do not allow are skipped with a one-line note on stderr saying
+why; everything else is drawn. The paths written are printed. Exit status: 0 done, 2 bad
+input.
 """
 
 from __future__ import annotations
@@ -39,8 +55,8 @@ from inhand_common.cli_types import command_parser
 from inhand_common.ground_truth import FRAMES, default_frame, in_frame, load_truth
 from inhand_tools.bag_points import bag_mode_for_frame, map_frame_of_bag, read_bag_points
 from inhand_tools.drawing import UP_AXES
-from inhand_tools.map_cells import load_map
-from inhand_tools.map_figures import draw_all
+from inhand_tools.map_cells import MapCells, load_map
+from inhand_tools.map_figures import StereoCloud, draw_all
 from inhand_tools.map_quality import find_truth
 
 __all__ = ['EXIT_BAD_INPUT', 'main']
@@ -70,7 +86,10 @@ def _parser() -> argparse.ArgumentParser:
                         help='first touched = this fraction of cells touched earliest')
     parser.add_argument('--resolution', type=float, metavar='M',
                         help='cell size (m) of a PLY or cloud map (default: inferred)')
-    parser.add_argument('--config', help='ROS parameter file for the registration of --bag')
+    parser.add_argument('--config', action='append', default=[],
+                        help='ROS parameter file for the registration of --bag and its stereo '
+                        'pair (e.g. config/mapping.yaml, then config/stereo.yaml for the '
+                        "rig's camera_pose); repeatable, later files override earlier ones")
     return parser
 
 
@@ -94,35 +113,70 @@ def _optional_truth(args: argparse.Namespace):
     return load_truth(truth_path)
 
 
+def _stereo_cloud(bag: Path, configs: list[str], mode: str
+                  ) -> tuple[StereoCloud | None, str | None]:
+    """(the bag's first usable stereo shot in the map frame, None) or (None, why not)."""
+    from inhand_mapping.mapping_config import load_parameters
+    from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+    registration, occupancy = load_parameters(configs, {'mode': mode})
+    stereo = stereo_config_for_map(configs, registration, occupancy)
+    try:
+        shot, why = read_bag_shot(bag, stereo)
+    except ValueError as error:  # stereo topics of another type, a damaged bag
+        return None, str(error)
+    if shot is None:
+        return None, why or 'the bag holds no stereo pair'
+    cloud = StereoCloud.of_shot(shot)
+    if len(cloud.points) == 0:
+        return None, 'the stereo pair gave no 3D points'
+    return cloud, None
+
+
+def _notes(cells: MapCells, bag: Path | None, why_no_stereo: str | None) -> list[str]:
+    """One line per stereo picture that is skipped, saying why."""
+    notes = []
+    if bag is not None and why_no_stereo is not None:
+        notes.append(f'no stereo_points.png or texture_registration.png: {why_no_stereo}')
+    if not cells.has_colours:
+        notes.append('no textured_map.png: the map carries no camera colours (build it from '
+                     'a bag with a stereo pair with --config config/stereo.yaml)')
+    return notes
+
+
 def _render(args: argparse.Namespace):
-    """Load the inputs and draw the pictures: (the map's cells, the paths written)."""
+    """Load the inputs and draw the pictures: (the map's cells, the paths written, notes
+    on the pictures skipped)."""
     cells = load_map(args.map, args.resolution)
     truth = _optional_truth(args)
     frame = args.frame or (default_frame(truth) if truth is not None else None)
-    bag_points = None
+    bag_points = stereo = why_no_stereo = None
     if args.bag is not None:
         frame = frame or map_frame_of_bag(args.bag)
-        bag_points = read_bag_points(args.bag, bag_mode_for_frame(frame), args.config)
+        mode = bag_mode_for_frame(frame)
+        bag_points = read_bag_points(args.bag, mode, args.config or None)
+        stereo, why_no_stereo = _stereo_cloud(args.bag, args.config, mode)
     if truth is not None:
         truth = in_frame(truth, frame or 'object')
     written = draw_all(cells, args.output, sorted(args.thresholds), bag_points, truth, frame,
                        up=args.up, size=args.size, top_fraction=args.top_fraction,
                        first_fraction=args.first_fraction,
-                       name=args.map.name.rsplit('.', 1)[0] or 'map')
-    return cells, written
+                       name=args.map.name.rsplit('.', 1)[0] or 'map', stereo=stereo)
+    return cells, written, _notes(cells, args.bag, why_no_stereo)
 
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         _check_options(args)
-        cells, written = _render(args)
+        cells, written, notes = _render(args)
     except (ValueError, OSError) as error:  # ParameterError and BagError are ValueErrors
         print(f'{PROG}: {error}', file=sys.stderr)
         return EXIT_BAD_INPUT
     if cells.problem:
         print(f'{PROG}: note: {args.map} is damaged: {cells.problem}',
               file=sys.stderr)
+    for note in notes:
+        print(f'{PROG}: note: {note}', file=sys.stderr)
     print(f'{PROG}: {cells.describe()}')
     for path in written:
         print(path)
