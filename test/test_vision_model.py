@@ -75,14 +75,16 @@ def _camera(width=64, height=48, focal=60.0):
     return P
 
 
-def test_one_exposure_against_a_brute_force_reference():
+@pytest.mark.parametrize('options', [{}, {'update': 'mean', 'noise': 'stereo'}])
+def test_one_exposure_against_a_brute_force_reference(options):
     """A wall at z = 0.3 m seen by a camera at the origin looking along +z (the map frame is
-    the camera frame): every cell is checked one by one against the model."""
+    the camera frame): every cell is checked one by one against the model (the compiled
+    kernel against the numpy arithmetic of VisionModel)."""
     spec = GridSpec(0.1, 0.01, (0.0, 0.0, 0.3))
     P = _camera()
     depth = np.full((48, 64), 0.3, dtype=np.float32)
     depth[:, :10] = np.nan                                  # no measurement there
-    m = model(epsilon=0.02, tau=0.01)
+    m = model(epsilon=0.02, tau=0.01, **options)
     n = spec.cells_per_axis
     ijk = np.indices((n, n, n)).reshape(3, -1).T
     centres = spec.cell_centres(ijk)

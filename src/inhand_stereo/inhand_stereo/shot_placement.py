@@ -61,11 +61,12 @@ class PlacedShot(NamedTuple):
         depth = self.shot.depth.astype(np.float64)
         height, width = depth.shape
         P = self.shot.left_camera.P
-        v, u = np.mgrid[0:height, 0:width]
-        rectified = np.stack([(u - P[0, 2]) * depth / P[0, 0], (v - P[1, 2]) * depth / P[1, 1],
-                              depth], axis=-1).reshape(-1, 3)
+        image = np.empty((height, width, 3))
+        image[..., 0] = ((np.arange(width) - P[0, 2]) / P[0, 0])[None, :] * depth
+        image[..., 1] = ((np.arange(height) - P[1, 2]) / P[1, 1])[:, None] * depth
+        image[..., 2] = depth
         matrix, offset = self.map_to_camera(camera_pose)
-        points: NDArray[np.float64] = (rectified - offset) @ matrix   # M is a rotation
+        points: NDArray[np.float64] = (image.reshape(-1, 3) - offset) @ matrix   # M: a rotation
         return points
 
     def integrate_into(self, vision: VisionMap, camera_pose: ArrayLike,

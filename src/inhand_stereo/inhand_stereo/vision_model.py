@@ -69,6 +69,7 @@ from scipy.special import ndtr  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Bools, Floats, Matrix3, Vector3
 from inhand_mapping.occupancy import GridSpec
+from inhand_stereo.vision_kernels import select_cells
 
 __all__ = ['NOISE_MODELS', 'UPDATES', 'VisionMap', 'VisionModel', 'VisionObservation',
            'depth_spread', 'observe_grid']
@@ -166,6 +167,12 @@ class VisionModel:
             return p
         return _truncated_normal_mean(mu, sigma)
 
+    def kernel_parameters(self) -> Floats:
+        """The model as vision_kernels.model_log_odds takes it."""
+        return np.array([self.epsilon, self.tau, self.sigma_min, self.zeta,
+                         float(self.noise == 'stereo'), float(self.update == 'mean'),
+                         self.p_free, self.p_occupied])
+
     def log_odds(self, delta: ArrayLike, d: ArrayLike, spread: ArrayLike | None = None
                  ) -> Floats:
         """The clamped log-odds update of one observation."""
@@ -236,43 +243,19 @@ def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray
     ``spread`` (H, W): the measured local spread of the depth (:func:`depth_spread`),
     raising sigma_s where it is larger; NaN there means no measurement."""
     matrix, offset = map_to_camera
-    projection = np.asarray(P, dtype=np.float64).reshape(3, 4)
-    height, width = depth.shape
-    rectified = centres @ np.asarray(matrix, dtype=np.float64).T + np.asarray(offset)
-    w = rectified @ projection[2, :3] + projection[2, 3]
-    z = rectified[:, 2]
-    ahead = (z > MIN_DEPTH) & (w > 0.0)
-    safe_w = np.where(ahead, w, 1.0)
-    # Pixel centres are at integer coordinates (ROS): the nearest pixel's depth.
-    u = np.rint((rectified @ projection[0, :3] + projection[0, 3]) / safe_w)
-    v = np.rint((rectified @ projection[1, :3] + projection[1, 3]) / safe_w)
-    inside: Bools = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    candidates = np.flatnonzero(inside)
-    rows, columns = v[candidates].astype(np.intp), u[candidates].astype(np.intp)
-    measured = np.asarray(depth, dtype=np.float64)[rows, columns]
-    seen = np.isfinite(measured) & (measured > 0.0)
-    on_object = (np.ones(len(candidates), dtype=bool) if object_mask is None
-                 else np.asarray(object_mask, dtype=bool)[rows, columns])
-    pixel_spread = (None if spread is None
-                    else np.asarray(spread, dtype=np.float64)[rows, columns])
-    if pixel_spread is not None:
-        seen &= np.isfinite(pixel_spread)
-        pixel_spread = pixel_spread[seen]
-    candidates, measured, on_object = candidates[seen], measured[seen], on_object[seen]
-    # Ranges along the ray through the cell centre: the measured point on that ray is at
-    # z = measured, so its range is measured * |p| / z.
-    cell_range = np.linalg.norm(rectified[candidates], axis=1)
-    measured_range = measured * cell_range / z[candidates]
-    behind = cell_range - measured_range           # the centre's; > 0 behind the surface
-    far_side = behind + resolution / 2.0
-    keep = np.where(on_object, behind <= model.band_behind(resolution),
-                    far_side <= -model.epsilon / 2.0)
-    cells, measured_range = candidates[keep], measured_range[keep]
-    delta = far_side[keep]
-    if pixel_spread is not None:
-        pixel_spread = pixel_spread[keep] * cell_range[keep] / z[cells]   # z to range
-    return VisionObservation(cells, model.log_odds(delta, measured_range, pixel_spread), delta,
-                             measured_range)
+    empty = np.empty((0, 0))
+    cells, updates, delta, measured_range = select_cells(
+        np.ascontiguousarray(centres, dtype=np.float64),
+        np.ascontiguousarray(matrix, dtype=np.float64),
+        np.ascontiguousarray(offset, dtype=np.float64).reshape(3),
+        np.ascontiguousarray(P, dtype=np.float64).reshape(3, 4),
+        np.ascontiguousarray(depth, dtype=np.float64),
+        empty.astype(bool) if object_mask is None else np.ascontiguousarray(object_mask,
+                                                                            dtype=bool),
+        empty if spread is None else np.ascontiguousarray(spread, dtype=np.float64),
+        float(resolution), float(model.band_behind(resolution)), -model.epsilon / 2.0,
+        model.kernel_parameters())
+    return VisionObservation(cells, updates, delta, measured_range)
 
 
 class VisionMap:
