@@ -4,6 +4,9 @@
                     [--frame object|tracker] [--explored-radius 0.005] [--json OUT]
                     [--config config/mapping.yaml [--config config/stereo.yaml]]
 
+A map saved with fusion (its NPZ keeps the touch and vision local maps) also gets the three
+maps side by side (inhand_tools/fusion_quality.py), at the highest threshold.
+
 MAP is one of
   * an NPZ saved by the occupancy node (``occupancy/save``) or ``build_map``: every touched
     cell with its probability, so any threshold can be evaluated;
@@ -49,6 +52,7 @@ from inhand_common.ground_truth import FRAMES, GroundTruth, default_frame, in_fr
 from inhand_mapping.mapping_config import load_parameters
 from inhand_tools.bag_points import BagPoints, bag_mode_for_frame, read_bag_points
 from inhand_tools.bag_stereo_shot import BagShot, read_bag_shot, stereo_config_for_map
+from inhand_tools.fusion_quality import fusion_scores, fusion_table
 from inhand_tools.map_cells import MapCells, load_map
 from inhand_tools.map_quality import (
     SurfaceTruth,
@@ -167,6 +171,8 @@ def _evaluate(args: argparse.Namespace, inputs: _Inputs) -> dict:
     results['stereo'] = None if inputs.shot is None else shot_scores(inputs.shot, inputs.truth,
                                                                       surface)
     results['stereo_note'] = inputs.shot_note
+    results['fusion'] = (fusion_scores(args.map, surface, visible, max(args.threshold))
+                         if inputs.cells.kind == 'npz' else None)
     return results
 
 
@@ -225,7 +231,7 @@ def _write_json(args: argparse.Namespace, inputs: _Inputs, results: dict) -> Non
                 'thresholds': results['map'], 'points': results['points'],
                 'colour': results['colour'], 'colour_note': results['colour_note'],
                 'seen_note': results['seen_note'], 'stereo': results['stereo'],
-                'stereo_note': results['stereo_note']}
+                'stereo_note': results['stereo_note'], 'fusion': results['fusion']}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(_jsonable(document), indent=2) + '\n')
 
@@ -246,6 +252,9 @@ def main(argv=None) -> int:
     if stereo:
         print()
         print('\n'.join(stereo))
+    if results['fusion'] is not None:
+        print()
+        print('\n'.join(fusion_table(results['fusion'])))
     if args.json:
         try:
             _write_json(args, inputs, results)
