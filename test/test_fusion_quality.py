@@ -56,3 +56,16 @@ def test_a_map_without_fusion_has_no_side_by_side_table(tmp_path):
                             timeout=300)
     assert scored.returncode == 0, scored.stderr
     assert 'local and global maps' not in scored.stdout
+
+
+def test_render_map_draws_the_local_maps_of_a_fused_map(fused_metrics, tmp_path_factory):
+    folder = next(tmp_path_factory.getbasetemp().glob('fused*'))
+    output = tmp_path_factory.mktemp('pictures')
+    result = subprocess.run([executable_path('render_map'), str(folder / 'cat_static.npz'),
+                             '--truth', f'{BAG}.truth.npz', '--output', str(output),
+                             '--size', '200'], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    import cv2
+    picture = cv2.imread(str(output / 'local_maps.png'))
+    assert picture is not None and picture.shape[1] >= 400     # two panels a row
+    assert str(output / 'local_maps.png') in result.stdout

@@ -26,8 +26,8 @@ import numpy as np
 
 from inhand_common.bag_source import BagSource
 
-__all__ = ['CLOUD_TOPICS', 'Lattice', 'MapCells', 'cell_indices', 'infer_lattice', 'is_bag',
-           'load_map']
+__all__ = ['CLOUD_TOPICS', 'Lattice', 'LocalMaps', 'MapCells', 'cell_indices', 'infer_lattice',
+           'is_bag', 'load_local_cells', 'load_map']
 
 CLOUD_TOPICS = ('occupancy/cloud', 'occupancy/occupied')
 POINT_CLOUD2 = 'sensor_msgs/msg/PointCloud2'
@@ -105,6 +105,37 @@ class MapCells:
         which = 'every touched cell' if self.complete else 'only the cells it was saved with'
         return (f'{self.source}: {len(self.centres)} cells ({which}), cell '
                 f'{self.lattice.resolution * 1000:g} mm, frame {self.frame_id}')
+
+
+@dataclass
+class LocalMaps:
+    """The maps a fused NPZ was made from, and the global map, as cells any sensor updated:
+    ``centres`` (n, 3) and each map's probability there (``touch``, ``vision``,
+    ``global_``); 1/2 (or the prior) where that map says nothing."""
+
+    centres: np.ndarray
+    touch: np.ndarray
+    vision: np.ndarray
+    global_: np.ndarray
+
+
+def load_local_cells(path) -> LocalMaps | None:
+    """The local maps of a map saved with fusion, None for any other map file."""
+    from inhand_mapping.map_io import load_local_maps, load_npz
+    path = Path(path)
+    if path.suffix != '.npz' or _is_truth_file(path):
+        return None
+    local = load_local_maps(path)
+    if set(local) != {'touch', 'vision'}:
+        return None
+    grid, _ = load_npz(path)
+    updated = (local['touch'] != grid.prior_log_odds) | (local['vision'] != 0.0)
+    ijk = np.argwhere(updated)
+
+    def probability(log_odds: np.ndarray) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-log_odds[updated]))
+    return LocalMaps(grid.spec.cell_centres(ijk), probability(local['touch']),
+                     probability(local['vision']), probability(grid.log_odds))
 
 
 def is_bag(path: Path) -> bool:

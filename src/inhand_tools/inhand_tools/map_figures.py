@@ -19,6 +19,8 @@ cm, the data frame's axes drawn in the corner):
                          (paper's fig. 6; needs a map with colours)
   texture_registration.png  the stereo points over the occupied cells, both in the map
                          frame: do they register? (paper's fig. 7; needs a StereoCloud)
+  local_maps.png         a map saved with fusion: the touch and vision local maps, the global
+                         map fused from them and its per-cell entropy (paper's fig. 1)
   figure.png             every picture's oblique view in one figure (not the
                          registration's)
 
@@ -52,17 +54,35 @@ from inhand_common.ground_truth import GroundTruth
 from inhand_tools import drawing
 from inhand_tools.bag_points import BagPoints
 from inhand_tools.drawing import OBLIQUE, SIDE, Camera, View
-from inhand_tools.map_cells import Lattice, MapCells, cell_indices
+from inhand_tools.map_cells import Lattice, LocalMaps, MapCells, cell_indices
 from inhand_tools.map_quality import explored_mask
 
 if TYPE_CHECKING:
     from inhand_tools.bag_stereo_shot import BagShot
 
-__all__ = ['FINGER_COLOURS', 'FRAME_LABELS', 'MapScene', 'StereoCloud', 'default_up',
-           'draw_all', 'draw_map_above', 'draw_map_thresholds', 'draw_overview',
-           'draw_raw_points', 'draw_regions', 'draw_registered_points', 'draw_stereo_points',
-           'draw_texture_registration', 'draw_textured_map', 'draw_truth', 'map_view_box',
-           'near_cells', 'raw_view_box', 'regions']
+__all__ = [
+    'FINGER_COLOURS',
+    'FRAME_LABELS',
+    'MapScene',
+    'StereoCloud',
+    'default_up',
+    'draw_all',
+    'draw_local_maps',
+    'draw_map_above',
+    'draw_map_thresholds',
+    'draw_overview',
+    'draw_raw_points',
+    'draw_regions',
+    'draw_registered_points',
+    'draw_stereo_points',
+    'draw_texture_registration',
+    'draw_textured_map',
+    'draw_truth',
+    'map_view_box',
+    'near_cells',
+    'raw_view_box',
+    'regions',
+]
 
 # BGR: orange, blue, green, purple, brown (fingers in finger_names order).
 FINGER_COLOURS = np.array([[28, 127, 255], [180, 119, 31], [44, 160, 44], [189, 103, 148],
@@ -595,6 +615,35 @@ def draw_truth(scene: MapScene, truth: GroundTruth) -> list:
                   (OBLIQUE,), 'ground truth')
 
 
+def draw_local_maps(scene: MapScene, local: LocalMaps) -> list:
+    """local_maps.png, the paper's Fig. 1 (a global map from local maps): the touch map, the
+    vision map and the global map fused from them (cells above the highest threshold,
+    shaded by probability), and the global map's cells above 1/2 coloured by their entropy
+    (darker: more certain); oblique views. Returns the global map's panel for the
+    overview."""
+    from inhand_mapping.entropy import cell_entropy
+    threshold = scene.occupied_threshold
+    panels = []
+    for title, probability in (('touch map', local.touch), ('vision map', local.vision),
+                               ('global map', local.global_)):
+        keep = probability > threshold
+        draw = scene.cell_drawer(local.centres[keep],
+                                 drawing.probability_colours(probability[keep]))
+        panels += _views(draw, scene.camera, scene.frame_label,
+                         f'{np.count_nonzero(keep)} cells', (OBLIQUE,),
+                         f'{title}, p > {threshold:g}')
+    likely = local.global_ > 0.5
+    certainty = 1.0 - cell_entropy(local.global_[likely])
+    draw = scene.cell_drawer(local.centres[likely], drawing.probability_colours(certainty))
+    panels += _views(draw, scene.camera, scene.frame_label,
+                     f'{np.count_nonzero(likely)} cells, p > 0.5; darker: lower entropy',
+                     (OBLIQUE,), 'global map, per-cell entropy')
+    scene.save('local_maps.png', drawing.grid_figure(
+        panels, 2, 'Local maps and the global map fused from them (paper Fig. 1)',
+        scene.probability_legend(scene.size * 2)))
+    return panels[2:3]
+
+
 def draw_overview(scene: MapScene, panels: list, title: str) -> None:
     """figure.png: every picture's oblique view (``panels``) in one figure."""
     columns = {1: 1, 2: 2, 3: 3, 4: 2, 5: 3, 6: 3, 9: 3}.get(len(panels), 4)
@@ -606,13 +655,15 @@ def draw_all(cells: MapCells, output: Path, thresholds, bag_points: BagPoints | 
              truth: GroundTruth | None = None, frame: str | None = None, *,
              up: str | None = None, size: int = 480, top_fraction: float = 0.1,
              first_fraction: float = 0.1, name: str = 'map',
-             raw_up: str | None = None, stereo: StereoCloud | None = None) -> list[Path]:
+             raw_up: str | None = None, stereo: StereoCloud | None = None,
+             local: LocalMaps | None = None) -> list[Path]:
     """Every picture of the module docstring that the inputs allow; returns the paths.
 
     ``up``: the map frame's up axis (default :func:`default_up` of ``frame``); ``raw_up``:
     the tracker frame's, for the raw points (default -z, or ``up`` for a tracker-frame map);
     ``stereo``: the bag's stereo shot in the map frame (stereo_points.png and
-    texture_registration.png). textured_map.png is drawn when the map has colours.
+    texture_registration.png). textured_map.png is drawn when the map has colours;
+    ``local``: the local maps of a fused map (local_maps.png).
     """
     scene = MapScene.create(cells, output, thresholds, truth, frame, up, size)
     overview: list[np.ndarray] = []
@@ -629,6 +680,8 @@ def draw_all(cells: MapCells, output: Path, thresholds, bag_points: BagPoints | 
             scene, None if stereo is None else stereo.camera_centre)
     if stereo is not None:
         overview += draw_texture_registration(scene, stereo)
+    if local is not None:
+        overview += draw_local_maps(scene, local)
     overview += draw_regions(scene, top_fraction, first_fraction)
     if truth is not None:
         overview += draw_truth(scene, truth)

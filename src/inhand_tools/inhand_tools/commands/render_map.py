@@ -27,6 +27,8 @@ scale bar in cm, the data frame's axes drawn in the corner):
                          the occupancy node with the stereo pair)
   texture_registration.png  the stereo points over the occupied cells: they register
                          (paper's fig. 7). Needs what stereo_points.png needs
+  local_maps.png         a map saved with fusion: the touch and vision local maps, the global
+                         map fused from them and its per-cell entropy (paper's fig. 1)
   figure.png             every picture's oblique view in one figure (not the registration)
 
 Each view is SIZE pixels square (two views side by side: 2 x SIZE wide). Every panel is
@@ -55,7 +57,7 @@ from inhand_common.cli_types import command_parser
 from inhand_common.ground_truth import FRAMES, default_frame, in_frame, load_truth
 from inhand_tools.bag_points import bag_mode_for_frame, map_frame_of_bag, read_bag_points
 from inhand_tools.drawing import UP_AXES
-from inhand_tools.map_cells import MapCells, load_map
+from inhand_tools.map_cells import MapCells, load_local_cells, load_map
 from inhand_tools.map_figures import StereoCloud, draw_all
 from inhand_tools.map_quality import find_truth
 
@@ -160,7 +162,8 @@ def _render(args: argparse.Namespace):
     written = draw_all(cells, args.output, sorted(args.thresholds), bag_points, truth, frame,
                        up=args.up, size=args.size, top_fraction=args.top_fraction,
                        first_fraction=args.first_fraction,
-                       name=args.map.name.rsplit('.', 1)[0] or 'map', stereo=stereo)
+                       name=args.map.name.rsplit('.', 1)[0] or 'map', stereo=stereo,
+                       local=load_local_cells(args.map))
     return cells, written, _notes(cells, args.bag, why_no_stereo)
 
 
