@@ -2,7 +2,8 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|all] [benchmark options]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|all]
+#                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
 #   mapping            occupancy integration vs OctoMap + publishing a full 70^3 map + build_map
@@ -10,6 +11,13 @@
 #   replay             a 240 Hz, 4-station, 60 s bag through bag_replay -> registration ->
 #                      occupancy over DDS: real-time factor, nothing lost
 #                      (test/benchmarks/bench_replay.py: --bag BAG, --runs R)
+#   stereo             disparity accuracy on synthetic scenes + the node's per-frame path
+#                      against the bare OpenCV matcher (test/benchmarks/bench_stereo.py:
+#                      --quick, --runs N, --no-accuracy, --no-timing)
+#   stereo-bags        disparity of the bundled bags' stereo pairs against their truth
+#                      (test/benchmarks/bench_stereo_bags.py: no options)
+#   texture            texture of the occupied cells: time and visibility rules
+#                      (test/benchmarks/bench_texture.py: --quick, --runs N)
 #   all                every benchmark in turn, each with the same options
 # Examples:
 #   bash launch_scripts/benchmark.sh --seconds 20
@@ -22,8 +30,11 @@ declare -A BENCHMARKS=(
   [liberty]=bench_liberty.py
   [mapping]=bench_mapping.py
   [replay]=bench_replay.py
+  [stereo]=bench_stereo.py
+  [stereo-bags]=bench_stereo_bags.py
+  [texture]=bench_texture.py
 )
-ORDER=(liberty mapping replay)
+ORDER=(liberty mapping replay stereo stereo-bags texture)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -21,22 +21,25 @@ bare default SGBM at a density of at least 0.9.
 
 Timing: one 640x480 pair (the ``sphere`` scene) taken as the raw images of a distorted,
 slightly rotated rig (``test/test_stereo_geometry.py``'s), so rectification really remaps.
-*Bare* is ``matcher.compute`` on the already rectified grey pair with the same settings;
-*ours* is what the node does per frame: rectify both images, ``DisparityMatcher.compute``
-(float conversion, cx adjustment, our filters), ``points_from_disparity`` with colours from
-the rectified left image and ``R_left`` (all valid pixels, step 1; step 2 shown too). For
-rgb8 input ours also converts to grey and rectifies the left colour image for the colours.
-Runs are interleaved (bare, ours, bare, ...) so drift hits both; each figure is the median
-of N runs after a warm-up (N/3 for SGBM). Target: ours <= 1.2 x bare, on the medians.
-On a shared machine the wall times swing with the other load (the load average is
-printed); the ratio of the best runs and the ratio of CPU times (all threads; OpenCV's
-matchers use every core, our numpy steps one) are printed beside it. Printed PASS/FAIL; the
-exit status is 0 unless a correctness check fails.
+*Bare* is the OpenCV matcher's ``compute`` (the very object ours calls, same settings) on
+the already rectified grey pair, the one our path feeds it for that encoding; *ours* is
+what the node does per frame, ``StereoPipeline.process`` from the raw images: rectify both
+(for rgb8 also the grey conversions and the left image's RGB), ``DisparityMatcher.compute``
+(float conversion, cx adjustment, our filters), the depth map, and the points with their
+colours in ``stereo_left_optical`` (all valid pixels at point_step 1; 2 shown too).
+Runs are interleaved, the order alternating (bare, ours, ours, bare, ...), so drift and
+cache effects hit both; each figure is the median of N runs after a warm-up (N/3 for
+SGBM). Target: ours <= 1.2 x bare, on the medians. On a shared machine the wall times
+swing with the other load (the load average is printed); the ratio of the best runs and
+the ratio of the median CPU times (all threads; OpenCV's matchers and remaps use every
+core, our numpy steps one) are printed beside it. Printed PASS/FAIL; the exit status is 0
+unless a correctness check fails.
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 import time
@@ -51,8 +54,13 @@ sys.path.insert(0, str(WORKSPACE / 'test'))
 
 from inhand_stereo.disparity import DisparityConfig, DisparityMatcher, valid_window  # noqa: E402
 from inhand_stereo.image_encoding import to_grey  # noqa: E402
-from inhand_stereo.rectification import StereoRectifier  # noqa: E402
-from inhand_stereo.reprojection import points_from_disparity  # noqa: E402
+from inhand_stereo.rectification import StereoRectifier, rectifier_for  # noqa: E402
+from inhand_stereo.reprojection import (  # noqa: E402
+    depth_and_points,
+    depth_map,
+    points_from_disparity,
+)
+from inhand_stereo.stereo_pipeline import StereoPipeline  # noqa: E402
 from test_stereo_disparity import SCENES, grey, render_scene, score  # noqa: E402
 from test_stereo_geometry import distorted_rig  # noqa: E402
 
@@ -161,23 +169,13 @@ def unrectify(image: np.ndarray, camera) -> np.ndarray:
 def timing(runs: int) -> bool:
     pair = render_scene('sphere', WIDTH, HEIGHT)
     left_camera, right_camera, _, _ = distorted_rig()
-    rectifier = StereoRectifier(left_camera, right_camera)
+    rectifier = rectifier_for(left_camera, right_camera)     # the one process() uses
     # Raw images of the distorted rig that rectify (up to two interpolations) to the
     # synthetic pair, so the matcher sees the scene and finds its disparities.
     raw_rgb = (unrectify(pair.left, left_camera), unrectify(pair.right, right_camera))
     raw_grey = (grey(raw_rgb[0]), grey(raw_rgb[1]))
-    rect_grey = rectifier.rectify(*raw_grey)
+    raw = {'mono8': raw_grey, 'rgb8': raw_rgb}
     ok = True
-
-    def our_path(matcher: DisparityMatcher, encoding: str, step: int) -> int:
-        left_raw, right_raw = raw_grey if encoding == 'mono8' else raw_rgb
-        rectified = rectifier.rectify_for_disparity(left_raw, right_raw, encoding)
-        result = matcher.compute(rectified.left_grey, rectified.right_grey,
-                                 cx_offset=rectifier.cx_offset)
-        points, _ = points_from_disparity(result.disparity, rectifier.Q, result.min_disparity,
-                                          image=rectified.left, R_left=rectifier.R_left,
-                                          step=step, encoding=encoding)
-        return len(points)
 
     print(f'\nPer-frame cost, {WIDTH}x{HEIGHT}, disparities {MIN_DISPARITY}..'
           f'{MIN_DISPARITY + DISPARITY_RANGE - 1}, median of {runs} runs (ms); ratios of the '
@@ -192,27 +190,41 @@ def timing(runs: int) -> bool:
                  ('+ median 5', {'median_size': 5}, 'mono8', 1),
                  ('+ WLS', {'wls_lambda': 8000.0}, 'mono8', 1)]
         for what, extra, encoding, step in cases:
-            matcher = DisparityMatcher(config(stereo_algorithm=algorithm, **extra))
-            bare = matcher.opencv_matcher    # the very OpenCV object ours calls
-            bare.compute(*rect_grey)
-            count = our_path(matcher, encoding, step)
-            bare_times: list[float] = []
-            our_times: list[float] = []
-            bare_cpu: list[float] = []
-            our_cpu: list[float] = []
-            n = max(3, runs // 3) if algorithm == 1 else runs
-            for _ in range(n):
-                started, cpu = time.perf_counter(), time.process_time()
+            pipeline = StereoPipeline(config(stereo_algorithm=algorithm, **extra),
+                                      point_step=step)
+            bare = pipeline.matcher.opencv_matcher    # the very OpenCV object ours calls
+            left_raw, right_raw = raw[encoding]
+            rect_grey = grey_pair(rectifier.rectify(left_raw, right_raw), encoding)
+
+            def run_bare(bare=bare, rect_grey=rect_grey) -> None:
                 bare.compute(*rect_grey)
-                bare_times.append(time.perf_counter() - started)
-                bare_cpu.append(time.process_time() - cpu)
-                started, cpu = time.perf_counter(), time.process_time()
-                our_path(matcher, encoding, step)
-                our_times.append(time.perf_counter() - started)
-                our_cpu.append(time.process_time() - cpu)
-            b, o = median_ms(bare_times), median_ms(our_times)
-            best = min(our_times) / min(bare_times)
-            cpu_ratio = np.median(our_cpu) / np.median(bare_cpu)
+
+            def run_ours(pipeline=pipeline, left_raw=left_raw, right_raw=right_raw,
+                         encoding=encoding) -> int:
+                shot = pipeline.process(0, left_raw, right_raw, encoding, left_camera,
+                                        right_camera)
+                return len(shot.points)
+
+            for _ in range(2):                        # warm-up: caches, buffers, threads
+                run_bare()
+                count = run_ours()
+            times: dict[str, list[float]] = {'bare': [], 'ours': []}
+            cpu: dict[str, list[float]] = {'bare': [], 'ours': []}
+            n = max(3, runs // 3) if algorithm == 1 else runs
+            gc.disable()                              # as timeit does: no collection inside
+            try:
+                for i in range(n):
+                    order = (('bare', run_bare), ('ours', run_ours))
+                    for name, step_run in order if i % 2 == 0 else order[::-1]:
+                        started, cpu_started = time.perf_counter(), time.process_time()
+                        step_run()
+                        times[name].append(time.perf_counter() - started)
+                        cpu[name].append(time.process_time() - cpu_started)
+            finally:
+                gc.enable()
+            b, o = median_ms(times['bare']), median_ms(times['ours'])
+            best = min(times['ours']) / min(times['bare'])
+            cpu_ratio = np.median(cpu['ours']) / np.median(cpu['bare'])
             verdict = ''
             if what == 'defaults' and step == 1:
                 verdict = 'PASS' if o <= 1.2 * b else 'FAIL'
@@ -225,16 +237,26 @@ def timing(runs: int) -> bool:
     return ok
 
 
+def grey_pair(images: tuple[np.ndarray, np.ndarray], encoding: str
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The grey pair the matcher gets from rectified images: colour ones turned grey after
+    the remap, as the node does."""
+    return to_grey(images[0], encoding), to_grey(images[1], encoding)
+
+
 def stage_timing(rectifier: StereoRectifier, camera, raw_grey, raw_rgb, runs: int) -> None:
     """Where our overhead goes, and the remap map formats compared."""
     matcher = DisparityMatcher(config())
     left, right = rectifier.rectify(*raw_grey)
     result = matcher.compute(left, right)
-    colour = rectifier.rectify_left(raw_rgb[0])
+    frame = rectifier.rectify_frame(*raw_rgb, 'rgb8')
+    colour = frame.left_rgb
     fine_maps = cv2.initUndistortRectifyMap(camera.K, camera.D, camera.R, camera.P[:, :3],
                                             (WIDTH, HEIGHT), cv2.CV_32FC1)
     fixed_maps = cv2.convertMaps(fine_maps[0], fine_maps[1], cv2.CV_16SC2)
     stages = {
+        'rectify_frame, mono8': lambda: rectifier.rectify_frame(*raw_grey, 'mono8'),
+        'rectify_frame, rgb8': lambda: rectifier.rectify_frame(*raw_rgb, 'rgb8'),
         'rectify both, mono8': lambda: rectifier.rectify(*raw_grey),
         'rectify left, rgb8': lambda: rectifier.rectify_left(raw_rgb[0]),
         'grey conversion, one rgb8 image': lambda: to_grey(raw_rgb[0], 'rgb8'),
@@ -251,12 +273,17 @@ def stage_timing(rectifier: StereoRectifier, camera, raw_grey, raw_rgb, runs: in
             cv2.COLOR_RGBA2RGB),
         'compute (BM, with conversion)': lambda: matcher.compute(left, right),
         'bare BM compute': lambda: matcher.opencv_matcher.compute(left, right),
-        'points + colours, step 1': lambda: points_from_disparity(
+        'depth + points + colours (RGBA), step 1': lambda: depth_and_points(
+            result.disparity, rectifier.Q, result.min_disparity, image=frame.left_rgba,
+            R_left=rectifier.R_left, encoding='rgba8'),
+        'depth map alone': lambda: depth_map(result.disparity, rectifier.Q,
+                                             result.min_disparity),
+        'points + colours (RGB), step 1': lambda: points_from_disparity(
             result.disparity, rectifier.Q, result.min_disparity, image=colour,
             R_left=rectifier.R_left),
         'points, no colours, step 1': lambda: points_from_disparity(
             result.disparity, rectifier.Q, result.min_disparity, R_left=rectifier.R_left),
-        'points + colours, step 2': lambda: points_from_disparity(
+        'points + colours (RGB), step 2': lambda: points_from_disparity(
             result.disparity, rectifier.Q, result.min_disparity, image=colour,
             R_left=rectifier.R_left, step=2),
         'cv2.reprojectImageTo3D (reference)': lambda: cv2.reprojectImageTo3D(
@@ -273,7 +300,6 @@ def stage_timing(rectifier: StereoRectifier, camera, raw_grey, raw_rgb, runs: in
     print(f'\nStages, median of {runs} runs (ms)')
     for name, values in samples.items():
         print(f'  {name:40s}{median_ms(values):8.3f}')
-
 
 
 def main() -> int:

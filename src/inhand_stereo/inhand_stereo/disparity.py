@@ -277,8 +277,8 @@ class DisparityMatcher:
             fixed = self._filter_wls(fixed, grey_left, grey_right, invalid_fixed)
         if config.median_size:
             fixed = _median(fixed, config.median_size, invalid_fixed)
-        disparity = fixed.astype(np.float32)
-        disparity *= np.float32(1.0 / DISPARITY_SCALE)
+        # One pass: the int16 values are cast and scaled (by a power of two: exact) at once.
+        disparity = np.multiply(fixed, np.float32(1.0 / DISPARITY_SCALE), dtype=np.float32)
         offset = np.float32(cx_offset)
         if offset:
             disparity -= offset

@@ -11,7 +11,10 @@ a few milliseconds) and every frame is one ``cv2.remap`` per image. Measured for
 (``test/benchmarks/bench_stereo.py``): float CV_32FC1 maps remap a grey image faster than
 the fixed-point CV_16SC2 ones (0.65 against 1.1 ms), and a colour image is remapped fastest
 as four channels: RGB -> RGBA, remap, -> RGB takes 0.6 ms where remapping the three
-channels directly takes 1.4 ms (CV_16SC2: 1.5), with the very same result.
+channels directly takes 1.4 ms (CV_16SC2: 1.5), with the very same result. The two map
+formats do not give the same image (OpenCV 5 interpolates float maps in floating point,
+fixed-point ones on a 1/32 px grid: a tenth of the pixels differ, by up to 3 grey levels),
+so the faster is also the one whose disparities the tests and benchmarks hold.
 
 Pairs whose images already are rectified (identity ``R``, no distortion, ``P = [K | t]``,
 as a simulator or a camera with on-board rectification publishes) are passed through
@@ -19,7 +22,11 @@ without a remap.
 
 For a colour camera, :meth:`StereoRectifier.rectify_for_disparity` rectifies what a frame
 needs (the left colour image for the points' and the map's colours, both images in grey for
-the matcher) with one colour and one grey remap.
+the matcher) with one colour and one grey remap. :meth:`StereoRectifier.rectify_frame`
+is the stereo node's per-frame step: it gives exactly what :meth:`~StereoRectifier.rectify`
+followed by the grey conversion gives (colour images remapped, then turned grey), with the
+left image kept as the RGBA the remap produced, so that neither the colours of the points
+nor the map's texture convert it again.
 
 The node keeps one rectifier per calibration: :func:`rectifier_for` returns the cached one
 while the CameraInfo values stay the same and builds a new one when they change.
@@ -42,7 +49,8 @@ from inhand_common.array_types import Floats, Matrix3
 from inhand_stereo.camera_model import CameraModel, CameraModelError
 from inhand_stereo.image_encoding import to_grey
 
-__all__ = ['Image', 'RectifiedPair', 'StereoRectifier', 'check_pair', 'rectifier_for']
+__all__ = ['Image', 'RectifiedFrame', 'RectifiedPair', 'StereoRectifier', 'check_pair',
+           'rectifier_for']
 
 Image = NDArray[np.uint8]   # (H, W) mono8 or (H, W, 3) rgb8/bgr8
 _MapPair = tuple[NDArray[Any], NDArray[Any]]   # cv2.remap's map1, map2
@@ -62,6 +70,19 @@ class RectifiedPair(NamedTuple):
     left: Image             # the left image as given (colour or mono): colours of points, texture
     left_grey: Image        # (H, W) for the matcher
     right_grey: Image       # (H, W) for the matcher
+
+
+class RectifiedFrame(NamedTuple):
+    """One frame rectified for the stereo node (:meth:`StereoRectifier.rectify_frame`)."""
+
+    left_rgba: NDArray[np.uint8]    # (H, W, 4) the left image, R, G, B (grey replicated), A
+    left_rgb: NDArray[np.uint8]     # (H, W, 3) the same, R, G, B (C-contiguous)
+    left_grey: Image                # (H, W) for the matcher
+    right_grey: Image               # (H, W) for the matcher
+
+
+# cv2.cvtColor codes: a raw colour image of this encoding -> RGBA in R, G, B order.
+_TO_RGBA = {'rgb8': cv2.COLOR_RGB2RGBA, 'bgr8': cv2.COLOR_BGR2RGBA}
 
 
 def check_pair(left: CameraModel, right: CameraModel) -> None:
@@ -235,6 +256,36 @@ class StereoRectifier:
         right_grey = self.rectify_right(to_grey(right_image, encoding))
         return RectifiedPair(left, left_grey, right_grey)
 
+    def rectify_frame(self, left_image: Image, right_image: Image, encoding: str
+                      ) -> RectifiedFrame:
+        """What the stereo node needs of a frame: the left image rectified as RGBA and RGB,
+        and both rectified images in grey for the matcher.
+
+        The values are exactly those of :meth:`rectify` followed by
+        :func:`~inhand_stereo.image_encoding.to_grey` and
+        :func:`~inhand_stereo.image_encoding.to_rgb`: a colour image is remapped in colour
+        (as four channels, the fastest: module doc) and turned grey afterwards, a mono8
+        image remapped as it is. The left colour image goes to RGBA in R, G, B order before
+        its remap (a bgr8 image's channels swapped in the same pass), so its grey, its RGB
+        and the points' colours (RGBA words) all come from the one remap. ``encoding``:
+        'mono8', 'rgb8' or 'bgr8', the order of colour images.
+        """
+        if left_image.ndim != right_image.ndim:
+            raise ValueError(f'left image {left_image.shape} and right image '
+                             f'{right_image.shape}: one is mono, the other colour')
+        if left_image.ndim == 2:
+            left_grey = self._remap('left', left_image)
+            right_grey = self._remap('right', right_image)
+            return RectifiedFrame(_converted(left_grey, cv2.COLOR_GRAY2RGBA),
+                                  _converted(left_grey, cv2.COLOR_GRAY2RGB), left_grey, right_grey)
+        if encoding not in _TO_RGBA:
+            raise ValueError(f"colour image encoding must be 'rgb8' or 'bgr8', got {encoding!r}")
+        left_rgba = self._remap_rgba('left', left_image, _TO_RGBA[encoding])
+        right_rgba = self._remap_rgba('right', right_image, _TO_RGBA[encoding])
+        return RectifiedFrame(left_rgba, _converted(left_rgba, cv2.COLOR_RGBA2RGB),
+                              _converted(left_rgba, cv2.COLOR_RGBA2GRAY),
+                              _converted(right_rgba, cv2.COLOR_RGBA2GRAY))
+
     def rectify_left(self, image: Image) -> Image:
         """The left image rectified (mono8 (H, W) or colour (H, W, 3), uint8)."""
         return self._remap('left', image)
@@ -247,17 +298,29 @@ class StereoRectifier:
         self._check_image(side, image)
         if self._passthrough:
             return image
-        map_x, map_y = self._maps[side]
         image = np.ascontiguousarray(image)
         if image.ndim == 2:
+            map_x, map_y = self._maps[side]
             return np.asarray(cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR,
                                         borderMode=cv2.BORDER_CONSTANT), dtype=np.uint8)
         # Four channels remap twice as fast as three (module doc); RGB2RGBA only appends
         # the alpha channel, so it serves BGR images as well.
-        four = cv2.cvtColor(image, cv2.COLOR_RGB2RGBA)
-        rectified = cv2.remap(four, map_x, map_y, cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT)
+        rectified = self._remap_rgba(side, image, cv2.COLOR_RGB2RGBA)
         return np.asarray(cv2.cvtColor(rectified, cv2.COLOR_RGBA2RGB), dtype=np.uint8)
+
+    def _remap_rgba(self, side: str, image: Image, code: int) -> NDArray[np.uint8]:
+        """A colour image converted to four channels by ``code`` and remapped (only
+        converted for pre-rectified cameras)."""
+        self._check_image(side, image)
+        if image.ndim != 3:
+            raise ValueError(f'{side} image: shape {image.shape}, expected a colour image '
+                             '(H, W, 3)')
+        four = _converted(np.ascontiguousarray(image), code)
+        if self._passthrough:
+            return four
+        map_x, map_y = self._maps[side]
+        return np.asarray(cv2.remap(four, map_x, map_y, cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_CONSTANT), dtype=np.uint8)
 
     def _check_image(self, side: str, image: Image) -> None:
         width, height = self._size
@@ -266,6 +329,10 @@ class StereoRectifier:
             raise ValueError(f'{side} image: shape {image.shape} {image.dtype}, expected uint8 '
                              f'({height}, {width}) mono8 or ({height}, {width}, 3) colour as '
                              'its camera_info says')
+
+
+def _converted(image: NDArray[np.uint8], code: int) -> NDArray[np.uint8]:
+    return np.asarray(cv2.cvtColor(image, code), dtype=np.uint8)
 
 
 # -- one rectifier per calibration --------------------------------------------------------

@@ -29,9 +29,8 @@ from inhand_common.array_types import Matrix3, Vector3
 from inhand_common.rotations import matrix_to_quaternion
 from inhand_stereo.camera_model import CameraModel
 from inhand_stereo.disparity import DisparityConfig, DisparityMatcher, DisparityResult
-from inhand_stereo.image_encoding import to_rgb
 from inhand_stereo.rectification import StereoRectifier, rectifier_for
-from inhand_stereo.reprojection import camera_points_to_map, depth_map, points_from_disparity
+from inhand_stereo.reprojection import camera_points_to_map, depth_and_points
 from inhand_stereo.texture import CellTexture, texture_cells
 
 __all__ = ['StereoPipeline', 'StereoShot', 'pose_vector']
@@ -95,16 +94,18 @@ class StereoPipeline:
                 raise ValueError(f'{side} image is {image.shape[1]}x{image.shape[0]} but its '
                                  f'camera_info says {model.width}x{model.height}')
         rectifier = rectifier_for(left, right)
-        left_rect, right_rect = rectifier.rectify(left_image, right_image)
-        result = self.matcher.compute(left_rect, right_rect, cx_offset=rectifier.cx_offset,
-                                      encoding=encoding)
-        left_rgb = np.ascontiguousarray(to_rgb(left_rect, encoding))
-        depth = depth_map(result.disparity, rectifier.Q, result.min_disparity)
-        points, colours = points_from_disparity(result.disparity, rectifier.Q,
-                                                result.min_disparity, image=left_rgb,
-                                                R_left=rectifier.R_left, step=self.point_step,
-                                                encoding='rgb8')
+        # One remap per image; the left one as RGBA gives the matcher's grey, the shot's RGB
+        # and the points' colours (RGBA words) without another conversion.
+        frame = rectifier.rectify_frame(left_image, right_image, encoding)
+        result = self.matcher.compute(frame.left_grey, frame.right_grey,
+                                      cx_offset=rectifier.cx_offset)
+        # The depth is the points' z in the rectified camera: one pass gives both.
+        depth, points, colours = depth_and_points(result.disparity, rectifier.Q,
+                                                  result.min_disparity, image=frame.left_rgba,
+                                                  R_left=rectifier.R_left, step=self.point_step,
+                                                  encoding='rgba8')
         if colours is None:
             colours = np.zeros((len(points), 3), dtype=np.uint8)
-        return StereoShot(stamp_ns=stamp_ns, disparity=result, depth=depth, left_rgb=left_rgb,
+        return StereoShot(stamp_ns=stamp_ns, disparity=result, depth=depth,
+                          left_rgb=frame.left_rgb,
                           points=points, colours=colours, rectifier=rectifier, left_camera=left)
