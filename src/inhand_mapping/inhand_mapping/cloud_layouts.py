@@ -147,6 +147,6 @@ def vision_log_odds(cells: np.ndarray, spec: GridSpec) -> tuple[np.ndarray, int]
     grid = np.zeros(spec.shape, dtype=np.float64)
     centres = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(np.float64)
     inside = spec.contains(centres)
-    ijk = np.floor((centres[inside] - spec.origin) / spec.resolution).astype(np.intp)
+    ijk = spec.cell_indices(centres[inside])
     grid[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = cells['log_odds'][inside].astype(np.float64)
     return grid, int(np.count_nonzero(~inside))

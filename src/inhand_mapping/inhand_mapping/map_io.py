@@ -109,8 +109,7 @@ class GridColours:
 
 
 def _cell_indices(spec: GridSpec, centres: ArrayLike) -> NDArray[np.intp]:
-    points = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-    ijk = np.floor((points - spec.origin) / spec.resolution).astype(np.intp)
+    ijk = spec.cell_indices(centres)
     if np.any((ijk < 0) | (ijk >= spec.cells_per_axis)):
         raise ValueError('cell centres outside the grid')
     return ijk

@@ -49,7 +49,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from inhand_common.array_types import Bools, CellFloats, CellHits, FingerIds, Floats, Points, Times
 from inhand_mapping import occupancy_kernels as kernels
@@ -106,10 +106,20 @@ class GridSpec:
         """Map-frame centres (N, 3) of the cells with indices ``ijk`` (N, 3)."""
         return self.origin + (np.asarray(ijk, dtype=float) + 0.5) * self.resolution
 
+    def _cell_coordinates(self, points: ArrayLike) -> Floats:
+        """Cell indices (N, 3) of map-frame points as floats (NaN stays NaN)."""
+        coordinates: Floats = np.floor((np.asarray(points, dtype=float).reshape(-1, 3)
+                                        - self.origin) / self.resolution)
+        return coordinates
+
+    def cell_indices(self, points: ArrayLike) -> NDArray[np.intp]:
+        """Integer cell indices (N, 3) of finite map-frame points, not checked against the
+        grid's bounds (:meth:`contains` says which are inside)."""
+        return self._cell_coordinates(points).astype(np.intp)
+
     def contains(self, points: ArrayLike) -> Bools:
         """Which map-frame points (N, 3) fall in a cell of the grid."""
-        ijk = np.floor((np.asarray(points, dtype=float).reshape(-1, 3) - self.origin)
-                       / self.resolution)
+        ijk = self._cell_coordinates(points)
         inside: Bools = np.all((ijk >= 0) & (ijk < self.cells_per_axis), axis=1)
         return inside
 

@@ -132,7 +132,7 @@ def segment_object(points: Points, spec: GridSpec,
     clusters = 0
     if keep.any():
         index = np.flatnonzero(keep)
-        ijk = np.floor((points[index] - spec.origin) / spec.resolution).astype(np.intp)
+        ijk = spec.cell_indices(points[index])
         occupied = np.zeros(spec.shape, dtype=bool)
         occupied[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
         cube = np.ones((3, 3, 3), dtype=bool)
