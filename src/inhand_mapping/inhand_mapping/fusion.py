@@ -40,6 +40,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from inhand_mapping.entropy import entropy_weights
+
 __all__ = ['FUSIONS', 'POOLINGS', 'Fused', 'fuse', 'fuse_entropy', 'fuse_product']
 
 Fusion: TypeAlias = Literal['none', 'product', 'entropy']
@@ -181,8 +183,7 @@ def fuse_entropy(touch: Grid, vision: Grid, clamp: tuple[float, float],
     h_touch, h_vision = np.empty_like(touch), np.empty_like(vision)
     total_touch, total_vision = _entropies(touch, vision, h_touch, h_vision)
     if radius == 0:
-        total = total_touch + total_vision
-        weight = 0.5 if total <= 0 else 1.0 - total_touch / total
+        weight = float(entropy_weights([total_touch, total_vision])[0])      # eq. 11
         w_touch: Grid = np.full_like(touch, weight)
     else:
         # outside the grid counts as unknown (1 bit) for both sensors
