@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from inhand_common.ground_truth import StereoTruth
+from inhand_stereo.texture import project_cells
 from inhand_tools.bag_stereo_shot import BagShot
 
 __all__ = ['touch_range_errors', 'truth_range_errors']
@@ -50,20 +51,19 @@ def touch_range_errors(shot: BagShot, points: np.ndarray, reach: float = 0.02
                        ) -> tuple[np.ndarray, np.ndarray]:
     """(fingertip ranges, errors) of registered fingertip positions (N, 3, map frame) that
     project onto a measured pixel and lie within ``reach`` (m) of the measured surface."""
-    matrix, offset = shot.placed.map_to_camera(shot.config.camera_pose)
-    rectified = np.asarray(points, dtype=np.float64).reshape(-1, 3) @ matrix.T + offset
-    depth = shot.placed.shot.depth
+    placed = shot.placed
+    camera = np.asarray(shot.config.camera_pose, dtype=np.float64)
+    projection = project_cells(points, placed.shot.left_camera, placed.shot.rectifier.R_left,
+                               (camera[:3], camera[3:]),
+                               (placed.object_pose[:3], placed.object_pose[3:]))
+    depth = placed.shot.depth
     height, width = depth.shape
-    P = shot.placed.shot.left_camera.P
-    z = rectified[:, 2]
-    ahead = z > 1e-3
-    safe = np.where(ahead, z, 1.0)
-    u = np.rint(P[0, 0] * rectified[:, 0] / safe + P[0, 2])
-    v = np.rint(P[1, 1] * rectified[:, 1] / safe + P[1, 2])
-    inside = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    u, v, rectified = u[inside].astype(np.intp), v[inside].astype(np.intp), rectified[inside]
-    measured = depth[v, u].astype(np.float64)
-    true_range = np.linalg.norm(rectified, axis=1)
-    error = measured * true_range / rectified[:, 2] - true_range
+    u, v = np.rint(projection.u), np.rint(projection.v)
+    inside = (projection.z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    # the fingertip's range along its own ray, and the measured range on the ray of its pixel
+    true_range = projection.z[inside] * _ray_factor(shot, projection.u[inside],
+                                                    projection.v[inside])
+    measured = depth[v[inside].astype(np.intp), u[inside].astype(np.intp)].astype(np.float64)
+    error = measured * true_range / projection.z[inside] - true_range
     keep = np.isfinite(error) & (np.abs(error) < reach)
     return true_range[keep], error[keep]
