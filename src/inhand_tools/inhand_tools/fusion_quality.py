@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from inhand_mapping.entropy import map_entropy
-from inhand_mapping.map_io import load_local_maps, load_npz
+from inhand_tools.map_cells import load_fused_maps
 from inhand_tools.map_quality import SurfaceTruth
 
 __all__ = ['FUSION_SCORE_KEYS', 'fusion_scores', 'fusion_table', 'map_scores']
@@ -68,27 +68,22 @@ def fusion_scores(npz: Path, surface: SurfaceTruth, visible: np.ndarray | None,
     """{'touch' | 'vision' | 'global': scores} of a map saved with fusion, None for a map
     without local maps. ``visible``: the surface samples the camera saw (None: only the
     touched surface counts as observed)."""
-    local = load_local_maps(npz)
-    if set(local) != {'touch', 'vision'}:
+    fused = load_fused_maps(npz)
+    if fused is None:
         return None
-    grid, _ = load_npz(npz)
-    spec = grid.spec
     observed = surface.explored | (visible if visible is not None else False)
-    touch_observed = local['touch'] != grid.prior_log_odds
-    vision_observed = local['vision'] != 0.0
-    maps = {'touch': local['touch'], 'vision': local['vision'], 'global': grid.log_odds}
-    others = {'touch': vision_observed, 'vision': touch_observed,
-              'global': np.zeros(spec.shape, dtype=bool)}
+    # a local map's occupied cells the other map never updated; the global map's, those
+    # exactly one of them updated
+    by_one_sensor = {'touch': ~fused.vision_observed, 'vision': ~fused.touch_observed,
+                     'global': fused.touch_observed ^ fused.vision_observed}
     results = {}
-    for name, log_odds in maps.items():
+    for name, log_odds in (('touch', fused.touch), ('vision', fused.vision),
+                           ('global', fused.global_)):
         probability = 1.0 / (1.0 + np.exp(-log_odds))
         occupied = probability > threshold
-        centres = spec.cell_centres(np.argwhere(occupied))
-        scores = map_scores(centres, surface, observed)
+        scores = map_scores(fused.spec.cell_centres(np.argwhere(occupied)), surface, observed)
         scores['entropy_bits'] = map_entropy(probability)
-        scores['only_this_sensor'] = int(np.count_nonzero(occupied & ~others[name])) \
-            if name != 'global' else int(np.count_nonzero(occupied & (touch_observed
-                                                                       ^ vision_observed)))
+        scores['only_this_sensor'] = int(np.count_nonzero(occupied & by_one_sensor[name]))
         results[name] = {key: scores[key] for key in FUSION_SCORE_KEYS}
     return results
 

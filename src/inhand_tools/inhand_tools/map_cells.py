@@ -26,8 +26,8 @@ import numpy as np
 
 from inhand_common.bag_source import BagSource
 
-__all__ = ['CLOUD_TOPICS', 'Lattice', 'LocalMaps', 'MapCells', 'cell_indices', 'infer_lattice',
-           'is_bag', 'load_local_cells', 'load_map']
+__all__ = ['CLOUD_TOPICS', 'FusedMaps', 'Lattice', 'LocalMaps', 'MapCells', 'cell_indices',
+           'infer_lattice', 'is_bag', 'load_fused_maps', 'load_local_cells', 'load_map']
 
 CLOUD_TOPICS = ('occupancy/cloud', 'occupancy/occupied')
 POINT_CLOUD2 = 'sensor_msgs/msg/PointCloud2'
@@ -108,6 +108,33 @@ class MapCells:
 
 
 @dataclass
+class FusedMaps:
+    """A map saved with fusion: the global map and the local maps it was fused from, as
+    log-odds grids, and where each sensor updated the grid."""
+
+    spec: object                  # the grid's GridSpec
+    touch: np.ndarray
+    vision: np.ndarray
+    global_: np.ndarray
+    touch_observed: np.ndarray    # bool grids: the cells each local map updated
+    vision_observed: np.ndarray
+
+
+def load_fused_maps(path) -> FusedMaps | None:
+    """The maps of an NPZ saved with fusion, None for any other map file."""
+    from inhand_mapping.map_io import load_local_maps, load_npz
+    path = Path(path)
+    if path.suffix != '.npz' or _is_truth_file(path):
+        return None
+    local = load_local_maps(path)
+    if set(local) != {'touch', 'vision'}:
+        return None
+    grid, _ = load_npz(path)
+    return FusedMaps(grid.spec, local['touch'], local['vision'], grid.log_odds,
+                     local['touch'] != grid.prior_log_odds, local['vision'] != 0.0)
+
+
+@dataclass
 class LocalMaps:
     """The maps a fused NPZ was made from, and the global map, as cells any sensor updated:
     ``centres`` (n, 3) and each map's probability there (``touch``, ``vision``,
@@ -120,22 +147,16 @@ class LocalMaps:
 
 
 def load_local_cells(path) -> LocalMaps | None:
-    """The local maps of a map saved with fusion, None for any other map file."""
-    from inhand_mapping.map_io import load_local_maps, load_npz
-    path = Path(path)
-    if path.suffix != '.npz' or _is_truth_file(path):
+    """The local maps of a map saved with fusion as cells, None for any other map file."""
+    fused = load_fused_maps(path)
+    if fused is None:
         return None
-    local = load_local_maps(path)
-    if set(local) != {'touch', 'vision'}:
-        return None
-    grid, _ = load_npz(path)
-    updated = (local['touch'] != grid.prior_log_odds) | (local['vision'] != 0.0)
-    ijk = np.argwhere(updated)
+    updated = fused.touch_observed | fused.vision_observed
 
     def probability(log_odds: np.ndarray) -> np.ndarray:
         return 1.0 / (1.0 + np.exp(-log_odds[updated]))
-    return LocalMaps(grid.spec.cell_centres(ijk), probability(local['touch']),
-                     probability(local['vision']), probability(grid.log_odds))
+    return LocalMaps(fused.spec.cell_centres(np.argwhere(updated)), probability(fused.touch),
+                     probability(fused.vision), probability(fused.global_))
 
 
 def is_bag(path: Path) -> bool:
