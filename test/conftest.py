@@ -26,3 +26,19 @@ def liberty_recordings() -> pathlib.Path:
     if not (folder / 'plhm_mocap1.txt').exists():
         pytest.skip(f'real Liberty recordings not found at {folder} (they live in ../shared)')
     return folder
+
+
+@pytest.fixture
+def panel_labels(monkeypatch):
+    """The (title, subtitle) of every panel the map pictures annotate, in order (records
+    ``inhand_tools.drawing.annotate``'s arguments and still draws)."""
+    from inhand_tools import drawing
+    labels = []
+    annotate = drawing.annotate
+
+    def recording(image, camera, title=None, subtitle=None, frame_label=None):
+        labels.append((title, subtitle or ''))
+        return annotate(image, camera, title, subtitle, frame_label)
+
+    monkeypatch.setattr(drawing, 'annotate', recording)
+    return labels

@@ -607,16 +607,9 @@ def test_camera_fills_the_panel_with_the_view_box():
         assert not camera.in_view(truth.stray_points[6:]).all()
 
 
-def test_render_map_counts_what_is_outside_the_view(tmp_path, monkeypatch):
+def test_render_map_counts_what_is_outside_the_view(tmp_path, panel_labels):
+    labels = panel_labels
     truth, cells = framing_case()
-    labels = []
-    annotate = render.annotate
-
-    def recording(image, camera, title=None, subtitle=None, frame_label=None):
-        labels.append((title, subtitle or ''))
-        return annotate(image, camera, title, subtitle, frame_label)
-
-    monkeypatch.setattr(render, 'annotate', recording)
     written = draw_all(cells, tmp_path, [0.0, 0.6, 0.8], None, truth, 'object', size=240)
     assert tmp_path / 'figure.png' in written
     truth_panels = [subtitle for title, subtitle in labels if 'stray points' in subtitle]

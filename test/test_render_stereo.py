@@ -14,7 +14,6 @@ import cv2
 import numpy as np
 import pytest
 
-from inhand_tools import drawing as render
 from inhand_tools.commands.build_map import main as build_map_main
 from inhand_tools.commands.render_map import main as render_map_main
 from inhand_tools.map_cells import Lattice, MapCells, cell_indices
@@ -150,15 +149,8 @@ def test_stereo_points_and_image_in_their_own_colours(drawn):
     assert len(registration) > 150 and near_hue(registration, POINT_RGB) > 0.95
 
 
-def test_registration_counts_the_points_near_the_map(tmp_path, monkeypatch):
-    labels = []
-    annotate = render.annotate
-
-    def recording(image, camera, title=None, subtitle=None, frame_label=None):
-        labels.append((title, subtitle or ''))
-        return annotate(image, camera, title, subtitle, frame_label)
-
-    monkeypatch.setattr(render, 'annotate', recording)
+def test_registration_counts_the_points_near_the_map(tmp_path, panel_labels):
+    labels = panel_labels
     cells = sphere_cells()
     draw_all(cells, tmp_path, [0.8], None, None, 'object', size=160, stereo=sphere_stereo())
     registered = {subtitle.split('\n')[0] for _, subtitle in labels if 'within a cell' in subtitle}
