@@ -9,20 +9,23 @@ publish and save the same map.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from inhand_mapping.fusion import Fused, fuse
+from inhand_mapping.fusion import fuse
 from inhand_mapping.occupancy import OccupancyGrid
+
+if TYPE_CHECKING:     # mapping_config builds on the maps, not the other way round
+    from inhand_mapping.mapping_config import OccupancyConfig
 
 __all__ = ['GlobalMap']
 
 
 class GlobalMap:
     @classmethod
-    def for_config(cls, touch: OccupancyGrid, config: Any) -> GlobalMap:
+    def for_config(cls, touch: OccupancyGrid, config: OccupancyConfig) -> GlobalMap:
         """With the fusion settings of an OccupancyConfig."""
         return cls(touch, config.fusion, config.entropy_radius, config.log_odds_clamp,
                    config.entropy_pooling)
@@ -35,7 +38,6 @@ class GlobalMap:
         self.entropy_pooling = entropy_pooling
         self.vision: NDArray[np.float64] | None = None
         self._fused: OccupancyGrid | None = None
-        self.last: Fused | None = None
         self._stale = True
 
     @property
@@ -61,9 +63,9 @@ class GlobalMap:
         if self._fused is None:
             self._fused = OccupancyGrid(self.touch.spec, self.touch.model)
         if self._stale:
-            self.last = fuse(self.fusion, self.touch.log_odds, self.vision, self.clamp,
-                             self.entropy_radius, self.entropy_pooling)
-            self._fused.show(self.last.log_odds, self.touch)
+            fused = fuse(self.fusion, self.touch.log_odds, self.vision, self.clamp,
+                         self.entropy_radius, self.entropy_pooling)
+            self._fused.show(fused.log_odds, self.touch)
             self._stale = False
         return self._fused
 
