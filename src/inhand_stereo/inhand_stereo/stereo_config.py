@@ -95,13 +95,17 @@ class StereoConfig:
     max_gap: float
     grid: GridSpec                       # the occupancy grid (the vision map's too)
     vision: VisionModel
-    clamp: tuple[float, float]           # the maps' probability clamps
     segmentation: SegmentationConfig
     camera_pose_given: bool = True       # False: no file set camera_pose (no calibration)
 
     @property
     def resolution(self) -> float:
         return self.grid.resolution
+
+    @property
+    def clamp(self) -> tuple[float, float]:
+        """The maps' probability clamps (clamp_min, clamp_max): one observation's too."""
+        return self.vision.p_free, self.vision.p_occupied
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any], camera_pose_given: bool = True
@@ -127,7 +131,6 @@ class StereoConfig:
                    point_step=int(values['point_step']), mode=str(values['mode']),
                    object_name=str(values['object_name']), max_gap=float(values['max_gap']),
                    grid=grid, vision=vision,
-                   clamp=(float(values['clamp_min']), float(values['clamp_max'])),
                    segmentation=SegmentationConfig(
                        plane_tolerance=float(values['plane_tolerance']),
                        support_fraction=float(values['support_fraction'])),

@@ -36,10 +36,10 @@ def stereo_config_for_map(configs: Sequence[str], registration: RegistrationConf
     map is: the registration's mode, object sensor and max_gap, the occupancy grid and its
     clamps (the node shares those parameters with the mapping nodes)."""
     stereo = load_stereo_config(configs, overrides)
-    clamp = (occupancy.model.clamp_min, occupancy.model.clamp_max)
     return replace(stereo, mode=registration.mode, object_name=registration.object_name,
-                   max_gap=registration.max_gap, grid=occupancy.grid, clamp=clamp,
-                   vision=replace(stereo.vision, p_free=clamp[0], p_occupied=clamp[1]))
+                   max_gap=registration.max_gap, grid=occupancy.grid,
+                   vision=replace(stereo.vision, p_free=occupancy.model.clamp_min,
+                                  p_occupied=occupancy.model.clamp_max))
 
 
 def bag_has_stereo_pair(bag: Path) -> bool:
