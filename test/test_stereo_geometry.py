@@ -159,26 +159,6 @@ def test_rectified_geometry_of_the_rig(rig):
     assert not rectifier.passthrough
 
 
-def test_rectify_for_disparity_gives_colour_left_and_grey_pair(rig):
-    left, right, raw_left, raw_right, _, _ = rig
-    rectifier = StereoRectifier(left, right)
-    grey_pair = [np.rint(raw).astype(np.uint8) for raw in (raw_left, raw_right)]
-    rgb_pair = [np.dstack([image, image // 2, 255 - image]) for image in grey_pair]
-    rectified = rectifier.rectify_for_disparity(*rgb_pair, encoding='rgb8')
-    assert rectified.left.shape == (HEIGHT, WIDTH, 3)
-    np.testing.assert_array_equal(rectified.left, rectifier.rectify_left(rgb_pair[0]))
-    np.testing.assert_array_equal(rectified.left_grey,
-                                  cv2.cvtColor(rectified.left, cv2.COLOR_RGB2GRAY))
-    right_grey = rectifier.rectify_right(cv2.cvtColor(rgb_pair[1], cv2.COLOR_RGB2GRAY))
-    np.testing.assert_array_equal(rectified.right_grey, right_grey)
-    # Grey then remap, or remap then grey: the same up to rounding.
-    other_order = rectifier.rectify_left(cv2.cvtColor(rgb_pair[0], cv2.COLOR_RGB2GRAY))
-    assert np.abs(other_order.astype(int) - rectified.left_grey).max() <= 1
-    mono = rectifier.rectify_for_disparity(*grey_pair)
-    assert mono.left is mono.left_grey
-    np.testing.assert_array_equal(mono.right_grey, rectifier.rectify_right(grey_pair[1]))
-
-
 # -- pre-rectified input ----------------------------------------------------------------------
 
 def rectified_pair(fx=500.0, fy=500.0, cx_left=320.0, cx_right=320.0, cy=240.0,

@@ -20,12 +20,9 @@ Pairs whose images already are rectified (identity ``R``, no distortion, ``P = [
 as a simulator or a camera with on-board rectification publishes) are passed through
 without a remap.
 
-For a colour camera, :meth:`StereoRectifier.rectify_for_disparity` rectifies what a frame
-needs (the left colour image for the points' and the map's colours, both images in grey for
-the matcher) with one colour and one grey remap. :meth:`StereoRectifier.rectify_frame`
-is the stereo node's per-frame step: it gives exactly what :meth:`~StereoRectifier.rectify`
-followed by the grey conversion gives (colour images remapped, then turned grey), with the
-left image kept as the RGBA the remap produced, so that neither the colours of the points
+:meth:`StereoRectifier.rectify_frame` is the stereo node's per-frame step: it gives
+exactly what :meth:`~StereoRectifier.rectify` followed by the grey conversion gives
+(colour images remapped, then turned grey), with the left image kept as the RGBA the remap produced, so that neither the colours of the points
 nor the map's texture convert it again.
 
 The node keeps one rectifier per calibration: :func:`rectifier_for` returns the cached one
@@ -47,9 +44,8 @@ from numpy.typing import NDArray
 
 from inhand_common.array_types import Floats, Matrix3
 from inhand_stereo.camera_model import CameraModel, CameraModelError
-from inhand_stereo.image_encoding import to_grey
 
-__all__ = ['Image', 'RectifiedFrame', 'RectifiedPair', 'StereoRectifier', 'check_pair',
+__all__ = ['Image', 'RectifiedFrame', 'StereoRectifier', 'check_pair',
            'rectifier_for']
 
 Image = NDArray[np.uint8]   # (H, W) mono8 or (H, W, 3) rgb8/bgr8
@@ -62,14 +58,6 @@ _DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
 # and are equal by construction; the tolerance only absorbs the decimals a YAML file keeps.
 _FOCAL_RTOL = 1e-5
 _PIXEL_ATOL = 1e-3
-
-
-class RectifiedPair(NamedTuple):
-    """What a frame's disparity and coloured points need, rectified."""
-
-    left: Image             # the left image as given (colour or mono): colours of points, texture
-    left_grey: Image        # (H, W) for the matcher
-    right_grey: Image       # (H, W) for the matcher
 
 
 class RectifiedFrame(NamedTuple):
@@ -240,21 +228,6 @@ class StereoRectifier:
         """Both images rectified (same shape and dtype as given); the inputs themselves when
         the cameras deliver rectified images."""
         return self.rectify_left(left_image), self.rectify_right(right_image)
-
-    def rectify_for_disparity(self, left_image: Image, right_image: Image,
-                              encoding: str = 'rgb8') -> RectifiedPair:
-        """The left image rectified as given and both in grey, with the fewest remaps.
-
-        A colour left image is rectified once and turned grey afterwards (grey conversion
-        and the bilinear remap commute up to rounding), the right one is turned grey first:
-        two remaps per frame instead of three (both grey for the matcher, the left colour for
-        the colours). ``encoding`` ('mono8', 'rgb8' or 'bgr8') gives the channel order of
-        colour images.
-        """
-        left = self.rectify_left(left_image)
-        left_grey = to_grey(left, encoding)
-        right_grey = self.rectify_right(to_grey(right_image, encoding))
-        return RectifiedPair(left, left_grey, right_grey)
 
     def rectify_frame(self, left_image: Image, right_image: Image, encoding: str
                       ) -> RectifiedFrame:
