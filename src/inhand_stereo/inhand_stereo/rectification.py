@@ -22,8 +22,9 @@ without a remap.
 
 :meth:`StereoRectifier.rectify_frame` is the stereo node's per-frame step: it gives
 exactly what :meth:`~StereoRectifier.rectify` followed by the grey conversion gives
-(colour images remapped, then turned grey), with the left image kept as the RGBA the remap produced, so that neither the colours of the points
-nor the map's texture convert it again.
+(colour images remapped, then turned grey), with the left image kept as the RGBA the
+remap produced, so that neither the colours of the points nor the map's texture convert it
+again.
 
 The node keeps one rectifier per calibration: :func:`rectifier_for` returns the cached one
 while the CameraInfo values stay the same and builds a new one when they change.
