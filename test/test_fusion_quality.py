@@ -17,8 +17,9 @@ BAG = str(WORKSPACE / 'bags' / 'cat_static')
 @pytest.fixture(scope='module')
 def fused_metrics(tmp_path_factory):
     folder = tmp_path_factory.mktemp('fused')
-    built = subprocess.run([executable_path('build_map'), BAG, *CONFIGS, '--set',
-                            'fusion=product', '--output-dir', str(folder), '--quiet'],
+    # the shipped configs fuse by product
+    built = subprocess.run([executable_path('build_map'), BAG, *CONFIGS, '--output-dir',
+                            str(folder), '--quiet'],
                            capture_output=True, text=True, timeout=300)
     assert built.returncode == 0, built.stderr
     assert 'product fusion with touch' in built.stdout
@@ -47,9 +48,9 @@ def test_the_three_maps_are_scored_side_by_side(fused_metrics):
 
 
 def test_a_map_without_fusion_has_no_side_by_side_table(tmp_path):
-    built = subprocess.run([executable_path('build_map'), BAG, *CONFIGS, '--output-dir',
-                            str(tmp_path), '--quiet'], capture_output=True, text=True,
-                           timeout=300)
+    built = subprocess.run([executable_path('build_map'), BAG, *CONFIGS, '--set', 'fusion=none',
+                            '--output-dir', str(tmp_path), '--quiet'], capture_output=True,
+                           text=True, timeout=300)
     assert built.returncode == 0, built.stderr
     scored = subprocess.run([executable_path('map_metrics'), str(tmp_path / 'cat_static.npz'),
                              '--truth', f'{BAG}.truth.npz'], capture_output=True, text=True,

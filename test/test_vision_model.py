@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from inhand_mapping.occupancy import GridSpec
-from inhand_stereo.vision_model import VisionMap, VisionModel, observe_grid
+from inhand_stereo.vision_model import VisionMap, VisionModel, depth_spread, observe_grid
 
 EPS, TAU = 0.01, 0.004
 
@@ -124,3 +124,24 @@ def test_the_vision_map_integrates_each_exposure_once_and_clamps():
     assert p.max() <= 0.97 + 1e-12 and p.min() >= 0.12 - 1e-12
     vision.reset()
     assert vision.exposures == 0 and not vision.observed_mask().any()
+
+
+def test_the_depth_spread_is_the_matchers_scatter_zero_on_any_plane():
+    v, u = np.mgrid[0:60, 0:80].astype(np.float64)
+    slanted = (0.4 + 0.0005 * u - 0.0003 * v).astype(np.float32)
+    spread = depth_spread(slanted, 5)
+    inner = spread[3:-3, 3:-3]
+    assert np.all(inner < 2e-6)                      # float32 rounding only, on a slant
+    # white noise of 1 mm: each pixel less the mean of its 3x3 (itself included) has the
+    # variance sigma^2 (1 - 2/9 + 1/9) = 8/9 sigma^2
+    rng = np.random.default_rng(3)
+    noisy = slanted + rng.normal(0.0, 0.001, slanted.shape).astype(np.float32)
+    assert np.median(depth_spread(noisy, 5)[3:-3, 3:-3]) == pytest.approx(
+        0.001 * math.sqrt(8 / 9), rel=0.1)
+    # a depth edge scatters; no depth at all says nothing
+    stepped = slanted.copy()
+    stepped[:, 40:] += 0.05
+    assert np.nanmin(depth_spread(stepped, 5)[10:50, 38:42]) > 0.005
+    holed = slanted.copy()
+    holed[20:40, 20:40] = np.nan
+    assert np.all(np.isnan(depth_spread(holed, 5)[25:35, 25:35]))

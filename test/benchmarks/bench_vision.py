@@ -26,6 +26,7 @@ import numpy as np
 
 WORKSPACE = Path(__file__).resolve().parents[2]
 
+from inhand_common.blas_threads import single_threaded_blas  # noqa: E402
 from inhand_mapping.bag_mapping import build_map_from_bag  # noqa: E402
 from inhand_mapping.fusion import fuse  # noqa: E402
 from inhand_mapping.mapping_config import load_parameters  # noqa: E402
@@ -48,6 +49,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--runs', type=int, default=9)
     args = parser.parse_args()
+    single_threaded_blas()     # as in the stereo node
     configs = [str(WORKSPACE / 'config' / 'mapping_static.yaml'),
                str(WORKSPACE / 'config' / 'stereo.yaml')]
     bag = WORKSPACE / 'bags' / 'cat_static'

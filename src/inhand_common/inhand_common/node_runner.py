@@ -19,6 +19,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from inhand_common.blas_threads import single_threaded_blas
 from inhand_common.parameters import ParameterError
 
 __all__ = ['EXIT_BAD_PARAMETERS', 'run_node']
@@ -33,6 +34,7 @@ def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | Non
 
     ``name`` prefixes the message printed when parameters are refused.
     """
+    single_threaded_blas()
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -120,7 +120,8 @@ class GridSpec:
     def contains(self, points: ArrayLike) -> Bools:
         """Which map-frame points (N, 3) fall in a cell of the grid."""
         ijk = self._cell_coordinates(points)
-        inside: Bools = np.all((ijk >= 0) & (ijk < self.cells_per_axis), axis=1)
+        axes = (ijk >= 0) & (ijk < self.cells_per_axis)
+        inside: Bools = axes[:, 0] & axes[:, 1] & axes[:, 2]    # faster than all(axis=1)
         return inside
 
 

@@ -53,6 +53,11 @@ class BagStereo:
         """The shot before the exploration (the paper's one shot), if any was usable."""
         return self.placed[0] if self.placed else None
 
+    @property
+    def last(self) -> PlacedShot | None:
+        """The latest usable shot: the one the stereo node colours the map with."""
+        return self.placed[-1] if self.placed else None
+
 
 def read_bag_stereo(bag: Path, config: StereoConfig) -> BagStereo:
     """Every stereo pair of ``bag`` through the pipeline with ``config`` (its disparity

@@ -77,10 +77,13 @@ class Segmentation(NamedTuple):
 
 
 def _fit_plane(points: Points) -> tuple[NDArray[np.float64], float]:
-    """Least-squares plane through points: (unit normal, offset)."""
+    """Least-squares plane through points: (unit normal, offset). The normal is the
+    scatter matrix's eigenvector of the smallest eigenvalue (the last right singular
+    vector of the centred points, from a 3x3 problem instead of an N x 3 one)."""
     centre = points.mean(axis=0)
-    _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
-    normal: NDArray[np.float64] = vt[2]
+    centred = points - centre
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    normal: NDArray[np.float64] = vectors[:, 0]
     return normal, float(-normal @ centre)
 
 
@@ -111,36 +114,45 @@ def segment_object(points: Points, spec: GridSpec,
     """The object's points among ``points`` (N, 3, map frame; non-finite rows are not
     kept), by the steps of the module doc."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    finite = np.all(np.isfinite(points), axis=1)
-    keep = np.zeros(len(points), dtype=bool)
-    keep[finite] = spec.contains(points[finite])
-    in_workspace = int(keep.sum())
+    # a row with a NaN or an infinity has a non-finite sum (column by column: fast)
+    index = np.flatnonzero(np.isfinite(points[:, 0] + points[:, 1] + points[:, 2]))
+    ijk = spec.cell_indices(points[index])
+    axes = (ijk >= 0) & (ijk < spec.cells_per_axis)
+    inside = axes[:, 0] & axes[:, 1] & axes[:, 2]
+    # from here on: the points in the grid (their rows in ``index``) and their cells
+    index, ijk = index[inside], ijk[inside]
+    candidates = points[index]
+    in_workspace = len(index)
+    chosen = np.ones(in_workspace, dtype=bool)
     support: Plane | None = None
     if in_workspace >= 3:
-        index = np.flatnonzero(keep)
-        found = _dominant_plane(points[index], config)
+        found = _dominant_plane(candidates, config)
         if found is not None:
             normal, offset = found
-            distance = points[index] @ normal + offset
+            distance = candidates @ normal + offset
             on = np.abs(distance) < config.plane_tolerance
             rest = distance[~on]
             above = float((rest > 0).mean()) if len(rest) else 1.0
             if on.mean() >= config.support_fraction and max(above, 1 - above) >= config.one_side:
                 side = 1.0 if above >= 0.5 else -1.0
                 support = Plane(side * normal, side * offset)
-                keep[index[distance * side <= config.plane_tolerance]] = False
+                chosen &= distance * side > config.plane_tolerance
     clusters = 0
-    if keep.any():
-        index = np.flatnonzero(keep)
-        ijk = spec.cell_indices(points[index])
-        occupied = np.zeros(spec.shape, dtype=bool)
-        occupied[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+    if chosen.any():
+        rows = np.flatnonzero(chosen)
+        cells = ijk[rows]
+        # the cells holding points, in their bounding box with a margin of one cell (the
+        # dilation's reach), so the labelling does not sweep the whole grid
+        cells = cells - (cells.min(axis=0) - 1)
+        occupied = np.zeros(tuple(cells.max(axis=0) + 2), dtype=bool)
+        occupied[cells[:, 0], cells[:, 1], cells[:, 2]] = True
         cube = np.ones((3, 3, 3), dtype=bool)
         labels, clusters = ndimage.label(ndimage.binary_dilation(occupied, structure=cube),
                                          structure=cube)
-        label_of = labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-        distance = np.linalg.norm(points[index] - np.asarray(spec.centre), axis=1)
+        label_of = labels[cells[:, 0], cells[:, 1], cells[:, 2]]
+        distance = np.linalg.norm(candidates[rows] - np.asarray(spec.centre), axis=1)
         nearest = ndimage.minimum(distance, labels=label_of, index=np.arange(1, clusters + 1))
-        chosen = int(np.argmin(nearest)) + 1
-        keep[index[label_of != chosen]] = False
+        chosen[rows[label_of != int(np.argmin(nearest)) + 1]] = False
+    keep = np.zeros(len(points), dtype=bool)
+    keep[index[chosen]] = True
     return Segmentation(keep, support, in_workspace, int(clusters))

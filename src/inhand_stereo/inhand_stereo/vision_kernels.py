@@ -47,7 +47,7 @@ def _phi(x: float) -> float:
 def model_log_odds(delta: float, measured_range: float, spread: float, model: Floats) -> float:
     """The vision model's clamped log-odds update (VisionModel.log_odds, one cell);
     ``model`` = [epsilon, tau, sigma_min, zeta, stereo noise (0/1), mean update (0/1),
-    p_free, p_occupied]."""
+    p_free, p_occupied, logit(p_free), logit(p_occupied)]."""
     epsilon, tau, sigma_min, zeta = model[0], model[1], model[2], model[3]
     growth = measured_range * measured_range if model[4] > 0.5 else measured_range
     sigma_s = max(sigma_min + zeta * growth, spread)
@@ -57,8 +57,7 @@ def model_log_odds(delta: float, measured_range: float, spread: float, model: Fl
     if (mu == 0.0 or mu == 1.0) and sigma < 0.5 / 9.0:
         # a confident belief at 0 or 1 (most of the free space in front): P(O) is within
         # Phi(-9) ~ 1e-19 of it, far inside the clamps, whichever reading
-        p = model[6] if mu == 0.0 else model[7]
-        return math.log(p / (1.0 - p))
+        return float(model[8] if mu == 0.0 else model[9])
     if model[5] > 0.5:     # the mean of the belief truncated to [0, 1]
         a, b = (0.0 - mu) / sigma, (1.0 - mu) / sigma
         mass = max(_phi(b) - _phi(a), 1e-300)
@@ -71,16 +70,17 @@ def model_log_odds(delta: float, measured_range: float, spread: float, model: Fl
 
 
 @_compiled
-def select_cells(centres: Floats, matrix: Floats, offset: Floats, P: Floats, depth: Floats,
-                 mask: NDArray[np.bool_], spread: Floats, resolution: float,
+def select_cells(centres: Floats, matrix: Floats, offset: Floats, P: Floats,
+                 surface: NDArray[np.float32], mask: NDArray[np.bool_], resolution: float,
                  band_behind: float, free_limit: float, model: Floats
                  ) -> tuple[NDArray[np.intp], Floats, Floats, Floats]:
     """(cells, log-odds update, delta to the far side, measured range) of the cells an
-    exposure updates; ``mask``/``spread`` of shape (0, 0) when not given."""
+    exposure updates. ``surface`` (H, W, 2): each pixel's depth and spread side by side,
+    so the one cache line a cell's pixel costs brings both (the pixels a grid's cells
+    land on are scattered over the image); ``mask`` of shape (0, 0) when not given."""
     count = centres.shape[0]
-    height, width = depth.shape
+    height, width = surface.shape[0], surface.shape[1]
     has_mask = mask.shape[0] > 0
-    has_spread = spread.shape[0] > 0
     cells = np.empty(count, dtype=np.intp)
     deltas = np.empty(count)
     ranges = np.empty(count)
@@ -103,14 +103,12 @@ def select_cells(centres: Floats, matrix: Floats, offset: Floats, P: Floats, dep
         if not (0 <= u < width and 0 <= v < height):
             continue
         row, column = int(v), int(u)
-        measured = depth[row, column]
+        measured = float(surface[row, column, 0])
         if not (math.isfinite(measured) and measured > 0.0):
             continue
-        pixel_spread = 0.0
-        if has_spread:
-            pixel_spread = spread[row, column]
-            if not math.isfinite(pixel_spread):
-                continue
+        pixel_spread = float(surface[row, column, 1])
+        if not math.isfinite(pixel_spread):
+            continue
         cell_range = math.sqrt(x * x + y * y + z * z)
         measured_range = measured * cell_range / z
         behind = cell_range - measured_range          # > 0: the centre is behind the surface

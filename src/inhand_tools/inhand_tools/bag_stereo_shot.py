@@ -50,8 +50,9 @@ def bag_has_stereo_pair(bag: Path) -> bool:
 
 @dataclass
 class BagShot:
-    """The first usable stereo shot of a bag with the configuration it was processed with,
-    and every pair's story (``pairs.refused``: one line per unusable pair)."""
+    """The first usable stereo shot of a bag (the one before the exploration, which the
+    simulator's truth describes) with the configuration it was processed with, and every
+    pair (``pairs.placed``; ``pairs.refused``: one line per unusable pair)."""
 
     placed: PlacedShot
     config: StereoConfig
@@ -68,8 +69,12 @@ class BagShot:
         return self.placed.points_in_map(self.config.camera_pose), self.placed.shot.colours
 
     def texture(self, centres: np.ndarray) -> CellTexture:
-        """Colours of occupied cells (map-frame centres), as ``occupancy/textured``."""
-        return self.placed.texture(centres, self.config.resolution, self.config.camera_pose)
+        """Colours of occupied cells (map-frame centres), as ``occupancy/textured``: from the
+        bag's last usable pair, as the stereo node colours with the latest pair it placed
+        (the same as the first in a bag with one pair)."""
+        latest = self.pairs.last
+        assert latest is not None   # a BagShot is made only for a bag with a usable pair
+        return latest.texture(centres, self.config.resolution, self.config.camera_pose)
 
     def vision_log_odds(self) -> np.ndarray:
         """The vision local map of every usable pair of the bag (each integrated once), as

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from inhand_common.blas_threads import single_threaded_blas
 from inhand_common.cli_types import command_parser
 from inhand_common.parameters import ParameterError
 from inhand_common.ros_names import MAP_FRAME
@@ -79,6 +80,7 @@ def main(argv=None) -> int:
                         help='override a parameter (repeatable)')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
     args = parser.parse_args(argv)
+    single_threaded_blas()     # as the nodes it stands for
     try:
         overrides = parse_overrides(args.set)
         registration, occupancy = load_parameters(
