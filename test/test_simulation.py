@@ -451,3 +451,28 @@ def test_the_camera_viewpoint_is_a_setting_and_the_default_keeps_old_sessions_by
     assert side.camera_direction[2] == pytest.approx(-math.sin(default_elevation))
     with pytest.raises(ValueError, match='camera_elevation_deg'):
         SessionSettings(camera_elevation_deg=95.0)
+
+
+def test_several_stereo_pairs_the_first_before_the_exploration(tmp_path):
+    from inhand_common.bag_source import BagSource
+    settings = SessionSettings(object_name='cat', static=False, rate=15.0, duration=4.0,
+                               seed=9, stereo=True, stereo_shots=3)
+    assert json.loads(settings.to_json())['stereo_shots'] == 3
+    assert 'stereo_shots' not in json.loads(SessionSettings(stereo=True).to_json())
+    session = simulate(settings)
+    assert [frame for frame, _ in session.stereo_shots] == [0, 20, 40]
+    assert session.stereo_shot is session.stereo_shots[0][1]
+    # the held object turned between the shots: each pair shows it otherwise
+    first, second = (shot.left for _, shot in session.stereo_shots[:2])
+    assert np.mean(np.any(first != second, axis=2)) > 0.01
+    bag, _ = write_session(session, tmp_path / 'three')
+    stamps: dict[str, list[int]] = {}
+    with BagSource(bag) as source:
+        for topic, stamp, _ in source.messages({'stereo/left/image_raw',
+                                                'stereo/right/camera_info'}):
+            stamps.setdefault(topic, []).append(stamp)
+    expected = [int(session.stamps_ns[k]) for k in (0, 20, 40)]
+    assert stamps == {'stereo/left/image_raw': expected, 'stereo/right/camera_info': expected}
+    assert session.message_count == 4 * 60 + 4 * 3
+    with pytest.raises(ValueError, match='stereo_shots'):
+        SessionSettings(stereo=True, stereo_shots=0)

@@ -57,13 +57,31 @@ def _with_fusion(tmp_path, config: str, fusion: str) -> str:
     return str(path)
 
 
+@pytest.fixture(scope='module')
+def two_pair_bag(tmp_path_factory):
+    """A held cat turned in front of the fixed rig, with a pair before the exploration and
+    one 20 s into it (another side of the cat)."""
+    bag = tmp_path_factory.mktemp('two_pairs') / 'cat_two_pairs'
+    subprocess.run([executable_path('simulate_session'), '--object', 'cat', '--moving',
+                    '--rate', '15', '--duration', '40', '--seed', '5', '--stereo',
+                    '--stereo-shots', '2', '--output', str(bag), '--quiet'], check=True,
+                   capture_output=True, timeout=300)
+    return bag
+
+
 @pytest.mark.parametrize('bag, config, fusion', [('cat_static', 'mapping_static.yaml', 'none'),
-                                                 ('cat_moving', 'mapping.yaml', 'product')])
-def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config, fusion):
+                                                 ('two_pairs', 'mapping.yaml', 'product')])
+def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, request, bag, config,
+                                                         fusion):
     from sensor_msgs.msg import PointCloud2
     from stereo_msgs.msg import DisparityImage
     config = _with_fusion(tmp_path, config, fusion)
-    truth = load_truth(WORKSPACE / 'bags' / f'{bag}.truth.npz')
+    bag_path = request.getfixturevalue('two_pair_bag') if bag == 'two_pairs' \
+        else WORKSPACE / 'bags' / bag
+    bag = bag_path.name
+    pairs = 2 if bag == 'cat_two_pairs' else 1
+    min_cells = 300 if pairs == 2 else 600
+    truth = load_truth(f'{bag_path}.truth.npz')
     topics = [('occupancy/occupied', PointCloud2), ('occupancy/textured', PointCloud2),
               ('stereo/points', PointCloud2), ('stereo/disparity', DisparityImage)]
     if fusion != 'none':
@@ -73,15 +91,14 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config, 
         with ProcessGroup() as group:
             mapping_graph(group, config, str(tmp_path), bag,
                           stereo_config=str(WORKSPACE / 'config' / 'stereo.yaml'))
-            assert group.run('replay', ['bag_replay', str(WORKSPACE / 'bags' / bag), '--fast',
-                                        '--quiet']) == 0
+            assert group.run('replay', ['bag_replay', str(bag_path), '--fast', '--quiet']) == 0
 
             def complete(latest):
                 # the textured map of the final occupied map (the latched ones of the end;
                 # with fusion, of the map fused with the vision map)
                 return (all(topic in latest for topic, _ in topics)
                         and latest['occupancy/textured'].width
-                        == latest['occupancy/occupied'].width > 600)
+                        == latest['occupancy/occupied'].width > min_cells)
             latest = listener.wait_for(complete)
             while True:       # until the graph is quiet: the map and its texture settled
                 time.sleep(1.5)
@@ -96,12 +113,16 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config, 
     assert disparity.header.frame_id == 'stereo_left_optical'
     assert (disparity.f, round(disparity.t, 6)) == (600.0, 0.07)
     assert (disparity.min_disparity, disparity.max_disparity) == (48.0, 159.0)
-    image = np.frombuffer(bytes(disparity.image.data), '<f4').reshape(480, 640)
-    valid = image >= disparity.min_disparity
-    object_pixels = truth.stereo.object_mask
-    assert valid[object_pixels].mean() > 0.8          # the object is matched densely ...
-    error = np.abs(image - truth.stereo.disparity)[object_pixels & valid]
-    assert np.mean(error > 2.0) < 0.05                # ... and right (bad-2 under 5%)
+    # the latest pair's: the second one is 20 s into the session
+    stamp = disparity.header.stamp.sec + disparity.header.stamp.nanosec * 1e-9
+    assert stamp == pytest.approx(truth.stereo.time + (20.0 if pairs == 2 else 0.0), abs=1e-6)
+    if pairs == 1:          # the truth describes the first pair
+        image = np.frombuffer(bytes(disparity.image.data), '<f4').reshape(480, 640)
+        valid = image >= disparity.min_disparity
+        object_pixels = truth.stereo.object_mask
+        assert valid[object_pixels].mean() > 0.8          # the object is matched densely ...
+        error = np.abs(image - truth.stereo.disparity)[object_pixels & valid]
+        assert np.mean(error > 2.0) < 0.05                # ... and right (bad-2 under 5%)
 
     points = from_point_cloud2(latest['stereo/points'])
     assert latest['stereo/points'].header.frame_id == 'object' and len(points) > 10_000
@@ -118,7 +139,7 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config, 
 
     # The saved map carries the colours, and it is build_map's of the same bag and files,
     # fused with the vision map when fusion is on.
-    offline = subprocess.run([executable_path('build_map'), str(WORKSPACE / 'bags' / bag),
+    offline = subprocess.run([executable_path('build_map'), str(bag_path),
                               '--config', config, '--config',
                               str(WORKSPACE / 'config' / 'stereo.yaml'), '--output-dir',
                               str(tmp_path / 'offline'), '--quiet'],
@@ -143,6 +164,28 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, bag, config, 
         # the vision map saw one side of the cat: some cells occupied, many free
         vision = saved_local['vision']
         assert (vision > 0).sum() > 100 and (vision < 0).sum() > 1000
+        assert f'vision: {pairs} stereo pair(s)' in offline.stdout
+    if pairs == 2:
+        # each pair integrated once: the second saw cells the first did not
+        first = _first_pair_vision(bag_path)
+        assert np.count_nonzero(saved_local['vision'] > 0) > \
+            np.count_nonzero(first > 0) + 20
+
+
+def _first_pair_vision(bag):
+    """The vision map of a bag's first pair alone (the tracked rig of the shipped files)."""
+    from inhand_mapping.mapping_config import load_parameters
+    from inhand_stereo.vision_model import VisionMap
+    from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+    configs = [str(WORKSPACE / 'config' / 'mapping.yaml'),
+               str(WORKSPACE / 'config' / 'stereo.yaml')]
+    registration, occupancy = load_parameters(configs, {})
+    stereo = stereo_config_for_map(configs, registration, occupancy)
+    shot, why = read_bag_shot(bag, stereo)
+    assert shot is not None and len(shot.pairs.placed) == 2, why
+    vision = VisionMap(stereo.grid, stereo.vision, stereo.clamp)
+    shot.placed.integrate_into(vision, stereo.camera_pose, stereo.segmentation)
+    return vision.log_odds
 
 
 class PairPublisher(BackgroundNode):

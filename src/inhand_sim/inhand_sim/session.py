@@ -109,6 +109,9 @@ class SessionSettings:
     # in tracked mode the object sensor is already streaming), by the default virtual rig
     # (inhand_sim.stereo_rig) looking at the object from camera_distance.
     stereo: bool = False
+    # Pairs in all: the first before the exploration, the others at evenly spaced frames
+    # during it (a held object shows the fixed rig another side each time).
+    stereo_shots: int = 1
     camera_distance: float = 0.42         # m
     # Where the rig stands around the object (tracker frame, z down): azimuth about the
     # vertical from the tracker's +x, elevation above the horizontal. None: the default rig's
@@ -130,6 +133,8 @@ class SessionSettings:
             problems.append('surface_samples must be >= 1')
         if self.seed < 0:
             problems.append(f'seed {self.seed} must be >= 0')
+        if not 1 <= self.stereo_shots <= 100:
+            problems.append(f'stereo_shots {self.stereo_shots} must be in [1, 100]')
         if not 0.15 <= self.camera_distance <= 2.0:
             problems.append(f'camera_distance {self.camera_distance} must be in [0.15, 2] m')
         if self.camera_elevation_deg is not None and not -80 <= self.camera_elevation_deg <= 89:
@@ -143,9 +148,10 @@ class SessionSettings:
     def to_json(self) -> str:
         # The viewpoint keys only when set, so sessions made before they existed (the
         # bundled bags) are written byte for byte as they were.
+        # So is the number of pairs when it is the one pair they had.
         values = {key: value for key, value in asdict(self).items()
                   if not (key in ('camera_azimuth_deg', 'camera_elevation_deg')
-                          and value is None)}
+                          and value is None) and not (key == 'stereo_shots' and value == 1)}
         return json.dumps(values, sort_keys=True, separators=(',', ':'))
 
     @property
@@ -175,12 +181,18 @@ class SimulatedSession:
     exploration: Exploration
     truth: dict                    # the sidecar's arrays (inhand_common.ground_truth)
     regrasp_windows: list          # (start, end) s relative to the first frame
-    stereo_shot: RenderedPair | None = None   # the image pair, when settings.stereo
+    # (frame index, image pair) of every pair, when settings.stereo; the first at frame 0
+    stereo_shots: list[tuple[int, RenderedPair]] = field(default_factory=list)
+
+    @property
+    def stereo_shot(self) -> RenderedPair | None:
+        """The pair before the exploration (the one the truth describes)."""
+        return self.stereo_shots[0][1] if self.stereo_shots else None
 
     @property
     def message_count(self) -> int:
-        """Messages in the bag: every station's pose per frame, and the stereo pair's four."""
-        return self.poses.shape[0] * self.poses.shape[1] + (4 if self.stereo_shot else 0)
+        """Messages in the bag: every station's pose per frame, and four per stereo pair."""
+        return self.poses.shape[0] * self.poses.shape[1] + 4 * len(self.stereo_shots)
 
     @property
     def duration(self) -> float:
@@ -366,27 +378,32 @@ def simulate(settings: SessionSettings, progress: Callable[[str], None] | None =
         'object_positions': obj_pos,
         'object_quaternions': obj_q,
     }
-    shot = None
+    shots = []
     if settings.stereo:
-        say('stereo pair')
-        shot = _stereo_shot(settings, obj, obj_pos[0], obj_q[0])
-        truth.update(_stereo_truth(settings, shot, surface, times_s[0]))
+        say('stereo pair' if settings.stereo_shots == 1 else
+            f'{settings.stereo_shots} stereo pairs')
+        frames = [int(k) for k in np.round(np.arange(settings.stereo_shots) * n_frames
+                                           / settings.stereo_shots)]
+        shots = [(k, _stereo_shot(settings, obj, obj_pos[k], obj_q[k], number))
+                 for number, k in enumerate(frames)]
+        truth.update(_stereo_truth(settings, shots[0][1], surface, times_s[0]))
     return SimulatedSession(settings=settings, object=obj, stations=tuple(stations),
                             stamps_ns=stamps_ns, poses=poses, exploration=exploration,
-                            truth=truth, regrasp_windows=windows, stereo_shot=shot)
+                            truth=truth, regrasp_windows=windows, stereo_shots=shots)
 
 
 def _stereo_shot(settings: SessionSettings, obj: ObjectModel, position: np.ndarray,
-                 quaternion: np.ndarray) -> RenderedPair:
-    """The pair the rig takes of the object at its first pose: static objects on their table,
-    held objects in the air (the backdrop behind them either way). The rig stands where a bench
-    rig would: fixed, aimed at the table's object position whether or not the object is held
-    (so one camera_pose calibration serves every session)."""
+                 quaternion: np.ndarray, number: int = 0) -> RenderedPair:
+    """The ``number``-th pair the rig takes of the object, at the pose given: static objects
+    on their table, held objects in the air (the backdrop behind them either way). The rig
+    stands where a bench rig would: fixed, aimed at the table's object position whether or
+    not the object is held (so one camera_pose calibration serves every session)."""
     rig = StereoRig.looking_at(target=settings.static_centre,
                                direction=settings.camera_direction,
                                distance=settings.camera_distance)
     # Its own stream of the seed: the poses above stay what they were without a camera.
-    rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(6)[5])
+    # Later pairs: streams of their own after it.
+    rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(6 + number)[5 + number])
     return render_pair(rig, obj, (position, quaternion), rng, table=settings.static)
 
 
@@ -420,14 +437,18 @@ def write_bag(session: SimulatedSession, path, progress: Callable[[float], None]
     poses = session.poses.tolist()
     stamp_list = stamps.tolist()
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        if session.stereo_shot is not None:
-            _write_stereo_pair(writer, store, session.stereo_shot, int(stamps[0]))
+        pairs = dict(session.stereo_shots)
+        camera = _StereoConnections(writer, store)
+        if 0 in pairs:      # the pair before the exploration comes first
+            camera.write(pairs.pop(0), stamp_list[0])
         connections = [writer.add_connection('/' + station_pose_topic(name), MSGTYPE,
                                              typestore=store)
                        for name in session.stations]
         step = max(1, n_frames // 50)
         for k in range(n_frames):
             sec, nsec, stamp = secs[k], nsecs[k], stamp_list[k]
+            if k in pairs:
+                camera.write(pairs[k], stamp)
             for s in range(n_stations):
                 writer.write(connections[s], stamp,
                              encode_pose_stamped(sec, nsec, FRAME_ID, poses[s][k]))
@@ -442,31 +463,45 @@ STEREO_TOPICS = {  # side: (image topic, camera_info topic, frame)
 }
 
 
-def _write_stereo_pair(writer, store, shot: RenderedPair, stamp_ns: int) -> None:
-    """The pair as a camera driver publishes it: rgb8 images and their camera_info, all four
-    stamped with the exposure (the first tracker frame)."""
-    types = store.types
-    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-    for side, image, camera in (('left', shot.left, shot.left_camera),
-                                ('right', shot.right, shot.right_camera)):
-        image_topic, info_topic, frame = STEREO_TOPICS[side]
-        header = types['std_msgs/msg/Header'](
-            stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec), frame_id=frame)
-        height, width = image.shape[:2]
-        image_msg = types['sensor_msgs/msg/Image'](
-            header=header, height=height, width=width, encoding='rgb8', is_bigendian=0,
-            step=3 * width, data=np.ascontiguousarray(image, dtype=np.uint8).reshape(-1))
-        roi = types['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0,
-                                                       do_rectify=False)
-        info_msg = types['sensor_msgs/msg/CameraInfo'](
-            header=header, height=camera.height, width=camera.width,
-            distortion_model=camera.distortion_model, d=np.asarray(camera.D, dtype=np.float64),
-            k=camera.K.reshape(-1), r=camera.R.reshape(-1), p=camera.P.reshape(-1),
-            binning_x=0, binning_y=0, roi=roi)
-        for topic, msgtype, msg in ((info_topic, 'sensor_msgs/msg/CameraInfo', info_msg),
-                                    (image_topic, 'sensor_msgs/msg/Image', image_msg)):
-            connection = writer.add_connection(topic, msgtype, typestore=store)
-            writer.write(connection, stamp_ns, store.serialize_cdr(msg, msgtype))
+class _StereoConnections:
+    """The four camera topics of a bag, each added once, and pairs written as a camera driver
+    publishes them: rgb8 images and their camera_info, all four stamped with the exposure."""
+
+    def __init__(self, writer, store):
+        self.writer, self.store = writer, store
+        self.connections: dict = {}
+
+    def write(self, shot: RenderedPair, stamp_ns: int) -> None:
+        store = self.store
+        types = store.types
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        for side, image, camera in (('left', shot.left, shot.left_camera),
+                                    ('right', shot.right, shot.right_camera)):
+            image_topic, info_topic, frame = STEREO_TOPICS[side]
+            header = types['std_msgs/msg/Header'](
+                stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
+                frame_id=frame)
+            height, width = image.shape[:2]
+            image_msg = types['sensor_msgs/msg/Image'](
+                header=header, height=height, width=width, encoding='rgb8', is_bigendian=0,
+                step=3 * width, data=np.ascontiguousarray(image, dtype=np.uint8).reshape(-1))
+            roi = types['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0,
+                                                           width=0, do_rectify=False)
+            info_msg = types['sensor_msgs/msg/CameraInfo'](
+                header=header, height=camera.height, width=camera.width,
+                distortion_model=camera.distortion_model,
+                d=np.asarray(camera.D, dtype=np.float64), k=camera.K.reshape(-1),
+                r=camera.R.reshape(-1), p=camera.P.reshape(-1), binning_x=0, binning_y=0,
+                roi=roi)
+            for topic, msgtype, msg in ((info_topic, 'sensor_msgs/msg/CameraInfo', info_msg),
+                                        (image_topic, 'sensor_msgs/msg/Image', image_msg)):
+                # each connection added just before its first message (the records in
+                # the order the bags have always had them)
+                if topic not in self.connections:
+                    self.connections[topic] = self.writer.add_connection(topic, msgtype,
+                                                                         typestore=store)
+                self.writer.write(self.connections[topic], stamp_ns,
+                                  store.serialize_cdr(msg, msgtype))
 
 
 def write_session(session: SimulatedSession, output, force: bool = False,

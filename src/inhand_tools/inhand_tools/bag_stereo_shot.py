@@ -68,6 +68,13 @@ class BagShot:
         what ``stereo/points`` carries."""
         return self.placed.points_in_map(self.config.camera_pose), self.placed.shot.colours
 
+    @property
+    def texture_stamp(self) -> float:
+        """Seconds: the stamp of the pair :meth:`texture` colours with (the last usable)."""
+        latest = self.pairs.last
+        assert latest is not None   # a BagShot is made only for a bag with a usable pair
+        return latest.shot.stamp_ns * 1e-9
+
     def texture(self, centres: np.ndarray) -> CellTexture:
         """Colours of occupied cells (map-frame centres), as ``occupancy/textured``: from the
         bag's last usable pair, as the stereo node colours with the latest pair it placed

@@ -48,6 +48,13 @@ def _seed(text: str) -> int:
     return value
 
 
+def _pairs(count: int) -> str:
+    if count == 0:
+        return ''
+    return '; and a stereo pair with its camera_infos' if count == 1 else \
+        f'; and {count} stereo pairs with their camera_infos'
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='simulate_session',
@@ -82,6 +89,10 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument('--stereo', action='store_true',
                         help='also one stereo image pair (and both camera_infos) of the object, '
                         'stamped at the first tracker frame, with its true depth in the sidecar')
+    parser.add_argument('--stereo-shots', type=int, default=1, metavar='N',
+                        help='with --stereo: N pairs in all, the first before the exploration and '
+                        'the others at evenly spaced frames during it (default 1; the sidecar '
+                        'describes the first)')
     parser.add_argument('--camera-distance', type=number(at_least=0.15, at_most=2.0, unit='m'),
                         default=0.42, help='distance of the stereo rig from the object (m)')
     parser.add_argument('--camera-azimuth', type=number(at_least=-360.0, at_most=360.0,
@@ -134,6 +145,10 @@ def main(argv=None) -> int:
         parser.error('--regrasp needs --moving: a static object is not re-grasped')
     if args.static and args.second_object_sensor:
         parser.error('--second-object-sensor needs --moving: a static session has no object sensor')
+    if args.stereo_shots != 1 and not args.stereo:
+        parser.error('--stereo-shots needs --stereo')
+    if not 1 <= args.stereo_shots <= 100:
+        parser.error(f'--stereo-shots {args.stereo_shots}: allowed is 1 to 100')
     output = args.output.rstrip('/') or args.output
     sidecar = truth_path(output)
     from pathlib import Path
@@ -149,7 +164,7 @@ def main(argv=None) -> int:
         second_object_sensor=args.second_object_sensor, rate=args.rate,
         duration=args.duration, seed=args.seed, noise_mm=args.noise_mm, stereo=args.stereo,
         camera_distance=args.camera_distance, camera_azimuth_deg=args.camera_azimuth,
-        camera_elevation_deg=args.camera_elevation)
+        camera_elevation_deg=args.camera_elevation, stereo_shots=args.stereo_shots)
     progress = _Progress(args.quiet)
     started = time.monotonic()
     session = simulate(settings, progress=lambda stage: progress.stage_done(stage))
@@ -167,7 +182,7 @@ def main(argv=None) -> int:
     print(f'  wrote {bag}/ : {session.message_count:,} messages '
           f'({len(session.stamps_ns):,} frames x {len(session.stations)} stations: '
           f'{", ".join(session.stations)}'
-          f'{"; and a stereo pair with its camera_infos" if session.stereo_shot else ""})')
+          f'{_pairs(len(session.stereo_shots))})')
     print(f'  wrote {truth} : {len(tr["contacts"]):,} contacts, {len(tr["stray_points"]):,} '
           f'strays, {len(tr["surface_points"]):,} surface samples')
     print(f'  in {elapsed:.1f} s')

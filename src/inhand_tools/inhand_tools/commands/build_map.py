@@ -62,7 +62,7 @@ def _with_vision(bag: Path, stereo: StereoConfig, occupancy: OccupancyConfig,
     centres = global_map.grid().cells(threshold=occupancy.occupied_threshold)[0]
     texture = shot.texture(centres)
     notes.append(f'  texture: {int(texture.textured.sum())} of {len(centres)} occupied cells '
-                 f'seen by the stereo pair at {shot.stamp:.3f} s '
+                 f'seen by the stereo pair at {shot.texture_stamp:.3f} s '
                  f'({time.monotonic() - started:.2f} s)')
     return global_map, texture, notes
 
