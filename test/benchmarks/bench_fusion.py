@@ -49,8 +49,10 @@ BUNDLED = [('bundled cat_static', 'cat_static', 'mapping_static.yaml'),
            ('bundled bottle_static', 'bottle_static', 'mapping_static.yaml')]
 FUSIONS = {
     'product': ['fusion=product'],
-    'entropy eq. 12': ['fusion=entropy'],
-    'entropy eq. 12, local r=1': ['fusion=entropy', 'entropy_radius=1'],
+    # every setting spelled out: the shipped files set the best entropy form
+    'entropy eq. 12': ['fusion=entropy', 'entropy_radius=0', 'entropy_pooling=linear'],
+    'entropy eq. 12, local r=1': ['fusion=entropy', 'entropy_radius=1',
+                                  'entropy_pooling=linear'],
     'entropy log, local r=1': ['fusion=entropy', 'entropy_radius=1', 'entropy_pooling=log'],
 }
 
