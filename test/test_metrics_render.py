@@ -29,7 +29,13 @@ from inhand_tools.commands.map_metrics import main as map_metrics_main
 from inhand_tools.commands.render_map import main as render_map_main
 from inhand_tools.map_cells import Lattice, MapCells, cell_indices, infer_lattice, load_map
 from inhand_tools.map_figures import default_up, draw_all, map_view_box, raw_view_box, regions
-from inhand_tools.map_quality import SurfaceTruth, explored_mask, map_metrics, point_metrics
+from inhand_tools.map_quality import (
+    SurfaceTruth,
+    explored_mask,
+    map_metrics,
+    point_metrics,
+    touch_coverage,
+)
 from pose_sessions import sphere_session, sphere_surface_points, touched_spot, write_pose_bag
 from ros_helpers import WORKSPACE, executable_path
 
@@ -699,3 +705,23 @@ def test_render_map_executable_and_bad_inputs(sessions, tmp_path):
     assert 'ground-truth file, not a map' in refused(s['truth'], '--output', tmp_path)
     assert '--size 10' in refused(s['map'], '--output', tmp_path, '--size', '10')
     assert 'must be in [0, 1)' in refused(s['map'], '--output', tmp_path, '--thresholds', '2')
+
+
+def test_touch_coverage_counts_touches_of_the_explored_surface_by_episode():
+    # a flat patch of 4 x 1 cells (5 mm), sampled densely; contacts in three of its cells:
+    # cell 0 twice 1 s apart (one touch), cell 1 at 0 s and 5 s (two touches), cell 2 once
+    grid = np.mgrid[0.0005:0.02:0.001, 0.0005:0.005:0.001].reshape(2, -1).T
+    surface = np.column_stack([grid, np.full(len(grid), 0.0025)])
+    contacts = np.array([[0.0025, 0.0025, 0.0025], [0.0026, 0.0025, 0.0025],
+                         [0.0075, 0.0025, 0.0025], [0.0076, 0.0025, 0.0025],
+                         [0.0125, 0.0025, 0.0025]])
+    times = np.array([0.0, 1.0, 0.0, 5.0, 2.0])
+    truth = SurfaceTruth(surface, contacts, explored_radius=0.004)
+    lattice = Lattice(0.005)
+    coverage = touch_coverage(truth, times, lattice)
+    cells = cell_indices(truth.explored_points, lattice)[:, 0]
+    assert set(np.unique(cells)) == {0, 1, 2, 3}          # 3.5 mm of cell 3 is explored too
+    assert coverage['once'] == pytest.approx(np.mean(cells <= 2))
+    assert coverage['twice'] == pytest.approx(np.mean(cells == 1))
+    # a longer gap makes the two touches of cell 1 one
+    assert touch_coverage(truth, times, lattice, gap=10.0)['twice'] == 0.0

@@ -101,7 +101,7 @@ from inhand_tools.map_cells import Lattice, MapCells, cell_indices, is_bag
 __all__ = ['COLOUR_SCORE_KEYS', 'MAP_SCORE_KEYS', 'METRIC_LABELS', 'SurfaceTruth',
            'colour_metrics', 'colour_problem', 'evaluate', 'explored_mask', 'find_truth',
            'format_metric', 'frame_check', 'label_width', 'map_metrics', 'metrics_table',
-           'point_metrics', 'seen_cells', 'surface_truth', 'true_cell_colours']
+           'point_metrics', 'seen_cells', 'surface_truth', 'touch_coverage', 'true_cell_colours']
 
 # Cell indices are packed into one int64 per cell: 20 bits per axis, offset to be positive.
 _BITS = 20
@@ -183,6 +183,31 @@ class SurfaceTruth:
         if len(points) == 0:
             return np.empty(0), np.empty(0, dtype=np.int64)
         return self.tree.query(points, k=1, workers=-1)
+
+
+def touch_coverage(surface: SurfaceTruth, contact_times, lattice: Lattice,
+                   gap: float = 3.0) -> dict:
+    """How much of the explored surface the session touched once and twice: what any map
+    could know, whatever its model. A cell of ``lattice`` holding true contacts is touched
+    once per episode (contacts in it more than ``gap`` seconds apart are two touches: the
+    occupancy model's ``visit_gap``); the shares are of the explored surface samples whose
+    cell was touched at least once / at least twice. Contacts are the tracker's samples, so
+    at a low rate a fast stroke's path between two samples counts nowhere."""
+    explored = surface.explored_points
+    if len(explored) == 0 or len(surface.contacts) == 0:
+        return {'once': 0.0, 'twice': 0.0, 'gap_s': gap}
+    keys = _keys(cell_indices(surface.contacts, lattice))
+    times = np.asarray(contact_times, dtype=float).reshape(-1)
+    order = np.lexsort((times, keys))
+    keys, times = keys[order], times[order]
+    new_touch = np.ones(len(keys), dtype=bool)
+    new_touch[1:] = (keys[1:] != keys[:-1]) | (np.diff(times) > gap)
+    touched, touches = np.unique(keys[new_touch], return_counts=True)
+    sample_keys = _keys(cell_indices(explored, lattice))
+    where = np.minimum(np.searchsorted(touched, sample_keys), len(touched) - 1)
+    count = np.where(touched[where] == sample_keys, touches[where], 0)
+    return {'once': float(np.mean(count >= 1)), 'twice': float(np.mean(count >= 2)),
+            'gap_s': gap}
 
 
 def _ratio(numerator, denominator) -> float:

@@ -62,6 +62,7 @@ from inhand_tools.map_quality import (
     label_width,
     metrics_table,
     surface_truth,
+    touch_coverage,
 )
 from inhand_tools.stereo_quality import (
     principal_point,
@@ -173,6 +174,8 @@ def _evaluate(args: argparse.Namespace, inputs: _Inputs) -> dict:
     results['stereo_note'] = inputs.shot_note
     results['fusion'] = (fusion_scores(args.map, surface, visible, max(args.threshold))
                          if inputs.cells.kind == 'npz' else None)
+    results['touch_coverage'] = touch_coverage(surface, inputs.truth.contact_times,
+                                               inputs.cells.lattice)
     return results
 
 
@@ -189,6 +192,10 @@ def _print_summary(args: argparse.Namespace, inputs: _Inputs, results: dict) -> 
           f'samples ({explored["explored_samples"] / explored["surface_samples"]:.1%}) within '
           f'{args.explored_radius * 1000:g} mm of a true contact; '
           f'{explored["explored_cells"]} cells')
+    coverage = results['touch_coverage']
+    print(f'touched: {coverage["once"]:.1%} of the explored surface at least once, '
+          f'{coverage["twice"]:.1%} at least twice (true contacts in its cell more than '
+          f'{coverage["gap_s"]:g} s apart)')
     if points is not None:
         stats = points.stats
         print(f'bag:   {args.bag}: {len(points.registered)} of {len(points.raw)} fingertip '
@@ -231,7 +238,8 @@ def _write_json(args: argparse.Namespace, inputs: _Inputs, results: dict) -> Non
                 'thresholds': results['map'], 'points': results['points'],
                 'colour': results['colour'], 'colour_note': results['colour_note'],
                 'seen_note': results['seen_note'], 'stereo': results['stereo'],
-                'stereo_note': results['stereo_note'], 'fusion': results['fusion']}
+                'stereo_note': results['stereo_note'], 'fusion': results['fusion'],
+                'touch_coverage': results['touch_coverage']}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(_jsonable(document), indent=2) + '\n')
 
