@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -18,6 +18,11 @@
 #                      (test/benchmarks/bench_stereo_bags.py: no options)
 #   texture            texture of the occupied cells: time and visibility rules
 #                      (test/benchmarks/bench_texture.py: --quick, --runs N)
+#   quality            the touch map on simulated sessions: objects x stroke speeds x rates x
+#                      static/tracked, F / precision / recall / stray cells / touched surface
+#                      per session and a summary against the targets
+#                      (test/benchmarks/bench_quality.py: --quick, --objects, --speeds, --rates,
+#                      --modes, --duration, --jobs, --set NAME=VALUE, --keep DIR)
 #   all                every benchmark in turn, each with the same options
 # Examples:
 #   bash launch_scripts/benchmark.sh --seconds 20
@@ -33,8 +38,9 @@ declare -A BENCHMARKS=(
   [stereo]=bench_stereo.py
   [stereo-bags]=bench_stereo_bags.py
   [texture]=bench_texture.py
+  [quality]=bench_quality.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags texture)
+ORDER=(liberty mapping replay stereo stereo-bags texture quality)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then
