@@ -57,6 +57,22 @@ def test_installed_driver_runs_and_refuses_a_bad_parameter(colcon_install):
         result.stderr
 
 
+def test_installed_simulator_finds_its_shipped_meshes(colcon_install, tmp_path):
+    share = colcon_install / 'inhand_sim' / 'share' / 'inhand_sim' / 'meshes'
+    assert sorted(p.name for p in share.glob('*.ply')) == ['animal.ply', 'cup.ply', 'duck.ply']
+    site = [str(p) for p in colcon_install.glob('*/lib/python3*/site-packages')]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(site))
+    simulate = colcon_install / 'inhand_sim' / 'lib' / 'inhand_sim' / 'simulate_session'
+    code = ('import sys; from inhand_sim.catalogue import mesh_folder; print(mesh_folder())')
+    where = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                           timeout=60, env=env, cwd=tmp_path)
+    assert where.stdout.strip() == str(share), where.stderr
+    result = subprocess.run([str(simulate), '--object', 'cup', '--static', '--rate', '15',
+                             '--duration', '2', '--seed', '1', '--output', str(tmp_path / 'cup'),
+                             '--quiet'], capture_output=True, text=True, timeout=120, env=env)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
 def test_colcon_meta_gives_each_package_its_tests():
     colcon = os.path.join(os.path.dirname(sys.executable), 'colcon')
     result = subprocess.run([colcon, '--log-base', os.devnull, 'info', 'polhemus_liberty'],

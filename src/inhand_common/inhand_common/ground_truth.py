@@ -13,7 +13,9 @@ OBJECT frame = the object's own frame:
 =====================  ==========  ============================================================
 key                    shape       content
 =====================  ==========  ============================================================
-object_name            () str      which object was explored (``cat``, ``bottle``, ``mug``)
+object_name            () str      which object was explored: a built-in one (``cat``,
+                                   ``bottle``, ``mug``), a shipped mesh (``cup``, ``animal``,
+                                   ``duck``) or a mesh file's path as given
 static                 () bool     static session (no object sensor in the bag)
 rate                   () float    tracker frame rate, Hz
 seed                   () int      the simulation seed
@@ -25,8 +27,13 @@ contacts               (M, 3)      noise-free contact points of every on-surface
                                    sample, OBJECT frame, in time order; each on the surface
 contact_times          (M,)        their stamps
 stray_points           (K, 3)      noise-free fingertip positions off the surface (transits,
-                                   involuntary lifts, re-grasps), OBJECT frame, each at least
-                                   6 mm from the surface; same order
+                                   involuntary lifts, re-grasps, lift-offs, touch-downs),
+                                   OBJECT frame, at any height: lifts rise continuously from
+                                   the surface, so some are a fraction of a millimetre off it
+                                   (at least 0.05 mm; sessions simulated with ``--lifts
+                                   between-frames``, and all before it, keep each at least 6 mm
+                                   off). Select the far ones by their distance to the surface
+                                   (the map metrics count strays > 5 mm off); same order
 stray_times            (K,)        their stamps
 object_times           (T,)        the stamp of every tracker frame
 object_positions       (T, 3)      true position of the OBJECT frame in the tracker frame

@@ -17,14 +17,26 @@ The thumb, index and middle fingertips each alternate between
   surface and comes back to the same place; sometimes it does so 2-5 times in a row at one
   place (the paper's case of off-surface movements repeated in one region, which can
   survive the probabilistic map);
+* **lift-off and touch-down**: a fingertip leaving the surface for a transit or a re-grasp
+  rises from it along the normal (from rest, ``liftoff_duration_range`` to the hover height
+  just past ``clearance``) and comes down the same way onto the next stroke's start;
 * **away phases** (re-grasps of hand-held objects): every fingertip leaves the object,
   withdraws briskly 15-22 cm (out of the other hand's way), drifts there while the other
   hand turns the object, and comes back.
 
-Every sample is either a contact (exactly on the surface) or an off-surface sample at
-least ``clearance`` (6 mm) from it: the lift-off and touch-down of a fingertip through the
-first few millimetres are taken to happen between two tracker frames (at 15 Hz they do; at
-240 Hz this is a simplification that keeps the two kinds apart in the ground truth).
+Every sample is either a contact (exactly on the surface) or an off-surface sample. With
+``continuous_lifts`` (the default: it is what fingers do) the height above the surface is
+continuous: lifts rise from 0 and come back to 0 (``sin^2`` of the lift's time, zero speed
+at both ends), lift-offs and touch-downs pass through every height between the surface and
+the hover height, so at 240 Hz there are off-surface samples at a fraction of a millimetre,
+1, 2, 4 mm ... (never closer than ``min_height``, 0.05 mm; the ground truth's strays are
+all of them). Without it (the sessions made before: ``continuous_lifts=False``) lift-off
+and touch-down happen between two tracker frames and every off-surface sample is at least
+``clearance`` (6 mm) off the surface.
+
+Stroke speed: each stroke draws its mean sliding speed from ``speed_range`` (2-5 cm/s by
+default; :func:`speed_range_around` gives a range around a chosen mean) and modulates it
+within the stroke by ``speed_variation``.
 
 The fingertip sensor is taken to sit at the contact point, as the paper assumes.
 Everything is generated in the OBJECT frame, except the away phases, which are planned in
@@ -46,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from inhand_common.rotations import quaternion_conjugate, rotate_vectors
-from inhand_sim.objects import HeldRegion, ObjectModel
+from inhand_sim.objects import HeldRegion, SolidObject
 
 __all__ = [
     'CONTACT',
@@ -57,6 +69,7 @@ __all__ = [
     'ExplorationSettings',
     'TrackerNoise',
     'explore',
+    'speed_range_around',
 ]
 
 FINGERS = ('thumb', 'index', 'middle')
@@ -83,7 +96,7 @@ class ExplorationSettings:
     fingertip_fit: float = 0.6                   # ... must fit this much at a contact (no narrow creases)
     max_turns: int = 8                           # a stroke turns aside at obstacles this often, then ends
     table_reach: float = 0.02                    # static: downward faces this near the table are out of reach
-    clearance: float = 0.006                     # every off-surface sample at least this far
+    clearance: float = 0.006                     # transits and re-grasps keep this far off the surface
     transit_height_range: tuple = (0.01, 0.02)   # how high a finger lifts to move elsewhere
     transit_speed: float = 0.35                  # mean speed of a transit, m/s
     transit_duration_range: tuple = (0.25, 0.9)  # s
@@ -101,6 +114,17 @@ class ExplorationSettings:
     dwell_duration_range: tuple = (0.3, 1.2)
     away_distance_range: tuple = (0.15, 0.22)    # withdrawal during a re-grasp
     pool_size: int = 300                         # candidate strokes per grip
+    # lift-offs, touch-downs and involuntary lifts pass through every height (False: they
+    # jump past `clearance` between two frames, as sessions made before did)
+    continuous_lifts: bool = True
+    liftoff_duration_range: tuple = (0.08, 0.16)  # from the surface to the hover height, s
+    min_height: float = 0.00005                  # off-surface samples at least this far off
+
+
+def speed_range_around(mean: float, spread: float = 0.2) -> tuple[float, float]:
+    """A stroke speed range (m/s) whose mean is ``mean``: strokes vary by ``spread`` (20%)
+    about it, each modulated within itself by ``speed_variation``."""
+    return (mean * (1.0 - spread), mean * (1.0 + spread))
 
 
 @dataclass(frozen=True)
@@ -168,7 +192,7 @@ class _Surroundings:
     """Distances to everything a fingertip must keep clear of: the object, and in static
     sessions the table (a half-space below ``table_z``)."""
 
-    def __init__(self, obj: ObjectModel, table: bool):
+    def __init__(self, obj: SolidObject, table: bool):
         self.obj = obj
         self.table = table
 
@@ -181,10 +205,12 @@ class _Surroundings:
             g = np.where(below[:, None], np.array([0.0, 0.0, 1.0]), g)
         return d, g
 
-    def push_out(self, p: np.ndarray, clearance: float, iterations: int = 12) -> np.ndarray:
-        """Move points closer than ``clearance`` out along the gradient until they are not."""
+    def push_out(self, p: np.ndarray, clearance, iterations: int = 12) -> np.ndarray:
+        """Move points closer than ``clearance`` (a number, or one per point) out along the
+        gradient until they are not (to 0.2 mm past it, or 20% past a smaller one)."""
         p = p.copy()
-        target = clearance + 2e-4
+        clearance = np.broadcast_to(np.asarray(clearance, dtype=float), (len(p),))
+        target = clearance + np.minimum(2e-4, 0.2 * clearance)
         for _ in range(iterations):
             d, g = self.sdf_grad(p)
             bad = d < clearance
@@ -192,7 +218,7 @@ class _Surroundings:
                 break
             gg = g[bad]
             g2 = np.maximum(np.sum(gg * gg, axis=1), 1e-300)
-            p[bad] += ((target - d[bad]) / g2)[:, None] * gg
+            p[bad] += ((target[bad] - d[bad]) / g2)[:, None] * gg
         return p
 
 
@@ -209,7 +235,7 @@ class _StrokePool:
     used: np.ndarray      # (S,) bool
 
 
-def _forbidden(obj: ObjectModel, held: HeldRegion, table: bool, settings: ExplorationSettings,
+def _forbidden(obj: SolidObject, held: HeldRegion, table: bool, settings: ExplorationSettings,
                points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     bad = held.contains(points)
     if table:
@@ -238,7 +264,7 @@ def _surface_step(obj, surroundings, held, table, settings, p, t, h):
     return q, n, ok
 
 
-def _build_pool(obj: ObjectModel, held: HeldRegion, table: bool, settings: ExplorationSettings,
+def _build_pool(obj: SolidObject, held: HeldRegion, table: bool, settings: ExplorationSettings,
                 rng: np.random.Generator) -> _StrokePool:
     """Integrate ``pool_size`` candidate strokes over the surface, all at once."""
     surroundings = _Surroundings(obj, table)
@@ -328,7 +354,7 @@ def _segment_clear(surroundings: _Surroundings, a, b, clearance: float) -> bool:
     return bool(np.all(surroundings.sdf_grad(pts)[0] >= clearance))
 
 
-def _air_waypoints(obj: ObjectModel, surroundings: _Surroundings, a, na, b, nb,
+def _air_waypoints(obj: SolidObject, surroundings: _Surroundings, a, na, b, nb,
                    settings: ExplorationSettings, rng) -> np.ndarray:
     """Waypoints from the lifted point ``a`` to the lifted point ``b`` (object frame) that
     keep clear of the object: straight if that is clear, else over the top or around."""
@@ -374,7 +400,7 @@ def _timed_polyline(points: np.ndarray, times: np.ndarray, t0: float, t1: float,
     return _polyline_at(points, end_speed * u + (1.0 - end_speed) * _min_jerk(u))
 
 
-def _slide_path(obj: ObjectModel, surroundings, held, table, settings, a, b):
+def _slide_path(obj: SolidObject, surroundings, held, table, settings, a, b):
     """A path over the surface from contact ``a`` to ``b`` (the chord projected onto the
     surface), or None where it would cross an obstacle or jump."""
     st = settings
@@ -409,6 +435,8 @@ class _Segment:
     fn: Callable[[np.ndarray], np.ndarray]      # times -> positions (object frame)
     contact: bool
     stroke_id: int = -1
+    near: bool = False      # off the surface from (or down to) it: kept only min_height off,
+                            # not `clearance` (lifts, lift-offs, touch-downs)
 
 
 def _stay_at(point: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
@@ -424,12 +452,28 @@ def _slide_along(path: np.ndarray, t0: float, t1: float) -> Callable[[np.ndarray
 
 def _lift_bump(point: np.ndarray, normal: np.ndarray, side: np.ndarray, t0: float,
                duration: float, height: float, low: float) -> Callable[[np.ndarray], np.ndarray]:
-    """Positions of an involuntary lift above the contact ``point``: up along ``normal`` from
-    ``low`` to ``height`` and back down in a sine bump over ``duration`` from ``t0``, drifting
-    by ``side`` at the top (``low`` keeps the lift's ends clear of the surface)."""
+    """Positions of an involuntary lift above the contact ``point``: up along ``normal`` to
+    ``height`` and back down over ``duration`` from ``t0``, drifting by ``side`` at the top.
+    ``low`` 0: from the surface and back in a ``sin^2`` bump (continuous, at rest at both
+    ends); ``low`` > 0: a sine bump from ``low`` (its ends clear of the surface, the jump
+    to it between two frames)."""
     def fn(times):
         bump = np.sin(np.pi * np.clip((times - t0) / duration, 0.0, 1.0))
+        if low == 0.0:
+            bump = bump * bump
         return point + (low + (height - low) * bump)[:, None] * normal + bump[:, None] * side
+    return fn
+
+
+def _rise(point: np.ndarray, normal: np.ndarray, t0: float, duration: float, height: float,
+          down: bool = False) -> Callable[[np.ndarray], np.ndarray]:
+    """A fingertip leaving the surface at ``point`` along ``normal``: from rest to ``height``
+    over ``duration`` from ``t0``, the height growing as the square of the time (or, ``down``,
+    the same backwards: coming down to rest on it)."""
+    def fn(times):
+        u = np.clip((times - t0) / duration, 0.0, 1.0)
+        rise = (1.0 - u) ** 2 if down else u ** 2
+        return point + (height * rise)[:, None] * normal
     return fn
 
 
@@ -520,7 +564,8 @@ def _lifts_in_place(track: _StrokeTrack, episode: _LiftEpisode, t: float, limit:
         if t + dur + touch >= limit:
             break
         segments.append(_Segment(t, t + dur, 'lift',
-                                 _lift_bump(point, normal, side, t, dur, max(height, low), low), False))
+                                 _lift_bump(point, normal, side, t, dur, max(height, low), low), False,
+                                 near=low == 0.0))
         segments.append(_Segment(t + dur, t + dur + touch, 'stroke', _stay_at(point), True, stroke_id))
         t += dur + touch
     return segments, t
@@ -553,8 +598,8 @@ def _stroke_segments(pool: _StrokePool, index: int, t0: float, duration: float, 
     track = _StrokeTrack(pool, index, speed, settings, rng)
     active = track.sliding_time(duration)
     episodes = _draw_lift_episodes(active, settings, rng)
-    segments = _slide_with_lifts(track, episodes, active, t0, limit, stroke_id,
-                                 settings.clearance + 0.0005)
+    low = 0.0 if settings.continuous_lifts else settings.clearance + 0.0005
+    segments = _slide_with_lifts(track, episodes, active, t0, limit, stroke_id, low)
     if not segments:
         return [], t0, track.path[0], track.normals[0]
     end_point = segments[-1].fn(np.array([segments[-1].t1]))[0]
@@ -589,7 +634,7 @@ class _Explorer:
     windows of the re-grasps, the stroke pool of each grip with how often its stroke starts
     have been explored, the fingers and the log of events."""
 
-    def __init__(self, obj: ObjectModel, duration: float, rng: np.random.Generator,
+    def __init__(self, obj: SolidObject, duration: float, rng: np.random.Generator,
                  settings: ExplorationSettings, grips: list, windows: list, table: bool,
                  object_pose: Callable | None):
         self.obj = obj
@@ -708,10 +753,11 @@ class _Explorer:
         self._stroke(finger, t, gi, index, planned, speed, limit)
 
     def _away(self, finger: _Finger, window: tuple[float, float]) -> None:
-        """Re-grasp: withdraw, wait while the object turns, come back to (lifted above) a
-        stroke chosen from the next grip's pool, done next."""
-        t = finger.t
-        t_back = window[1] + self.rng.uniform(0.0, 0.4)
+        """Re-grasp: withdraw, wait while the object turns, come back to (lifted above, or
+        with continuous lifts down onto) a stroke chosen from the next grip's pool, done
+        next."""
+        t = self._lift_off(finger, finger.t, 'away')
+        t_back = max(window[1] + self.rng.uniform(0.0, 0.4), t + 0.1)
         gi, index = self.choose_stroke(finger, t_back, finger.pos)
         pool = self.pool_list[gi]
         b = pool.starts[index] + pool.start_normals[index] * self.hover
@@ -721,7 +767,31 @@ class _Explorer:
         self.events.append((finger.name, 'away', t, t_back))
         finger.t, finger.pos, finger.normal = t_back, b, pool.start_normals[index]
         finger.contact = None
+        finger.t = self._touch_down(finger, t_back, pool.starts[index], pool.start_normals[index], 'away')
         finger.pending = (gi, index)
+
+    def _lift_off(self, finger: _Finger, t: float, kind: str, latest: float = math.inf) -> float:
+        """With continuous lifts, a finger on the surface (``finger.contact``) rises from it
+        to ``finger.pos`` (hover height, along ``finger.normal``) before it moves (``kind``),
+        by ``latest`` at the latest. Returns the time it is up there."""
+        if not self.st.continuous_lifts or finger.contact is None:
+            return t
+        rise = min(self.rng.uniform(*self.st.liftoff_duration_range), latest - t)
+        finger.segments.append(_Segment(t, t + rise, kind, _rise(finger.contact, finger.normal, t, rise,
+                                                                 self.hover), False, near=True))
+        finger.contact = None
+        return t + rise
+
+    def _touch_down(self, finger: _Finger, t: float, start: np.ndarray, normal: np.ndarray,
+                    kind: str) -> float:
+        """With continuous lifts, a finger hovering above ``start`` comes down onto it (the
+        end of ``kind``). Returns the time it is on the surface."""
+        if not self.st.continuous_lifts:
+            return t
+        fall = self.rng.uniform(*self.st.liftoff_duration_range)
+        finger.segments.append(_Segment(t, t + fall, kind, _rise(start, normal, t, fall, self.hover,
+                                                                 down=True), False, near=True))
+        return t + fall
 
     def _to_stroke(self, finger: _Finger, t: float, gi: int, index: int, speed: float, limit: float,
                    window: tuple[float, float] | None) -> float | None:
@@ -764,16 +834,19 @@ class _Explorer:
                                    pool.start_normals[index], self.st, self.rng)
         length = np.sum(np.linalg.norm(np.diff(waypoints, axis=0), axis=1))
         dt = float(np.clip(length / self.st.transit_speed, *self.st.transit_duration_range))
-        if t + dt > limit - 0.2 and window is not None:
+        # with continuous lifts the lift-off and touch-down take their time too
+        landing = 2.0 * self.st.liftoff_duration_range[1] if self.st.continuous_lifts else 0.0
+        if t + dt + landing > limit - 0.2 and window is not None:
             self._hover(finger, t, limit, finger.pos, finger.normal)
             pool.used[index] = False
             return None
         end_speed = self.st.transit_end_speed
-        finger.segments.append(_Segment(t, t + dt, 'transit',
-                                        lambda times: _timed_polyline(waypoints, times, t, t + dt, end_speed),
-                                        False))
-        self.events.append((finger.name, 'transit', t, t + dt))
-        return t + dt
+        t0 = self._lift_off(finger, t, 'transit')
+        finger.segments.append(_Segment(
+            t0, t0 + dt, 'transit',
+            lambda times: _timed_polyline(waypoints, times, t0, t0 + dt, end_speed), False))
+        self.events.append((finger.name, 'transit', t, t0 + dt))
+        return self._touch_down(finger, t0 + dt, pool.starts[index], pool.start_normals[index], 'transit')
 
     def _dwell(self, finger: _Finger, t: float, start: np.ndarray, limit: float) -> float:
         """Now and then the fingertip rests on the stroke's ``start`` for a moment (if that
@@ -798,7 +871,11 @@ class _Explorer:
             pool, index, t, planned, speed, self.st, self.rng, stroke_id, limit)
         if not segments:
             lifted = pool.starts[index] + pool.start_normals[index] * self.hover
-            self._hover(finger, t, max(limit, t), lifted, pool.start_normals[index])
+            if self.st.continuous_lifts:    # on the stroke's start: it lifts off from there
+                finger.t, finger.pos, finger.normal = t, lifted, pool.start_normals[index]
+                finger.contact = pool.starts[index]
+            else:
+                self._hover(finger, t, max(limit, t), lifted, pool.start_normals[index])
             return
         finger.segments.extend(segments)
         self.events.append((finger.name, 'stroke', t, t_end))
@@ -809,21 +886,25 @@ class _Explorer:
     def _hover(self, finger: _Finger, t: float, until: float, point: np.ndarray,
                normal: np.ndarray) -> None:
         """The finger waits off the surface at ``point`` from ``t`` until ``until`` (a
-        re-grasp)."""
+        re-grasp), having lifted off to it first (continuous lifts, a finger on the surface)."""
+        if until > t:
+            t = self._lift_off(finger, t, 'transit', latest=until)
         finger.segments.append(_Segment(t, until, 'transit', _stay_at(point), False))
         finger.t, finger.pos, finger.normal = until, point, normal
         finger.contact = None
 
 
-def _sample_timelines(fingers: list[_Finger], times: np.ndarray, rate: float, obj: ObjectModel,
-                      surroundings: _Surroundings, clearance: float):
+def _sample_timelines(fingers: list[_Finger], times: np.ndarray, rate: float, obj: SolidObject,
+                      surroundings: _Surroundings, settings: ExplorationSettings):
     """Every finger's segments evaluated at the tracker frames ``times`` (= k / ``rate``),
-    each segment at the frames in [t0, t1). Contacts are put exactly on the surface and
-    everything else at least ``clearance`` off it. Returns positions (3, T, 3), contact,
-    stroke and kind (3, T)."""
+    each segment at the frames in [t0, t1). Contacts are put exactly on the surface; the
+    samples of lifts, lift-offs and touch-downs at least ``min_height`` off it, at their
+    height above the surface itself (:func:`_above_the_surface`), everything else at least
+    ``clearance`` off it. Returns positions (3, T, 3), contact, stroke and kind (3, T)."""
     n_frames = len(times)
     positions = np.zeros((3, n_frames, 3))
     contact = np.zeros((3, n_frames), dtype=bool)
+    near = np.zeros((3, n_frames), dtype=bool)
     stroke = np.full((3, n_frames), -1, dtype=int)
     kind = np.zeros((3, n_frames), dtype=np.int8)
     for f, finger in enumerate(fingers):
@@ -834,17 +915,40 @@ def _sample_timelines(fingers: list[_Finger], times: np.ndarray, rate: float, ob
                 continue
             positions[f, k0:k1] = seg.fn(times[k0:k1])
             contact[f, k0:k1] = seg.contact
+            near[f, k0:k1] = seg.near
             stroke[f, k0:k1] = seg.stroke_id if seg.kind == 'stroke' else -1
             kind[f, k0:k1] = SAMPLE_KINDS.index(seg.kind)
     on = contact.reshape(-1)
     flat = positions.reshape(-1, 3)
     flat[on] = obj.project_to_surface(flat[on])
     off = ~on
-    flat[off] = surroundings.push_out(flat[off], clearance)
+    if settings.continuous_lifts:
+        low = near.reshape(-1)[off]
+        floor = np.where(low, settings.min_height, settings.clearance)
+        flat[off] = surroundings.push_out(flat[off], floor)
+        flat[off] = _above_the_surface(obj, flat[off], floor)
+    else:
+        flat[off] = surroundings.push_out(flat[off], settings.clearance)
     return flat.reshape(3, n_frames, 3), contact, stroke, kind
 
 
-def explore(obj: ObjectModel, duration: float, rate: float, rng: np.random.Generator,
+def _above_the_surface(obj: SolidObject, points: np.ndarray, floor: np.ndarray,
+                       zone: float = 0.002) -> np.ndarray:
+    """Off-surface points within ``zone`` of the surface, placed at their height (the SDF,
+    at least ``floor``) along the normal above their nearest point ON the surface: for a mesh
+    the distance grid is a fraction of a millimetre off the triangles, so a sample planned
+    0.1 mm up is put 0.1 mm above the triangles, not maybe under them."""
+    points = points.copy()
+    height = obj.sdf(points)
+    close = np.flatnonzero(height < zone)
+    if close.size:
+        foot = obj.project_to_surface(points[close])
+        up = np.maximum(height[close], floor[close])
+        points[close] = foot + up[:, None] * obj.normals(foot)
+    return points
+
+
+def explore(obj: SolidObject, duration: float, rate: float, rng: np.random.Generator,
             settings: ExplorationSettings = ExplorationSettings(), *,
             grips: Sequence[HeldRegion] | None = None,
             away_windows: Sequence[tuple[float, float]] = (),
@@ -867,7 +971,7 @@ def explore(obj: ObjectModel, duration: float, rate: float, rng: np.random.Gener
     explorer = _Explorer(obj, duration, rng, settings, grips, windows, table, object_pose)
     explorer.plan()
     positions, contact, stroke, kind = _sample_timelines(explorer.fingers, times, rate, obj,
-                                                         explorer.surroundings, settings.clearance)
+                                                         explorer.surroundings, settings)
     return Exploration(times=times, positions=positions, contact=contact, stroke=stroke,
                        grip=explorer.grip_indices(times), held_regions=explorer.grip_of, kind=kind,
                        events=explorer.events)

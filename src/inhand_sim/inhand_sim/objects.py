@@ -1,7 +1,10 @@
 """Object models with exact ground truth: unions of analytic primitives.
 
-Every object is a union of primitives, each with a signed distance function (negative
-inside), an exact uniform-by-area surface sampler and an exact area. Coordinates are in
+:class:`SolidObject` is what the exploration, the sessions, the ground truth and the stereo
+rig ask of any object (this module's unions of primitives, and the triangle meshes of
+:mod:`inhand_sim.mesh_objects`). Every object here is a union of primitives, each with a
+signed distance function (negative inside), an exact uniform-by-area surface sampler and an
+exact area. Coordinates are in
 metres in the OBJECT frame, which is the frame of the object's tracker sensor: the origin is
 where that sensor is mounted (the cat's belly, the bottle's side, the mug's underside) and
 +z is the object's "up" (away from the table it stands on).
@@ -47,6 +50,7 @@ __all__ = [
     'Primitive',
     'RevolvedBox',
     'RoundCone',
+    'SolidObject',
     'Sphere',
     'get_object',
 ]
@@ -515,16 +519,86 @@ class HeldRegion:
         return inside
 
 
-@dataclass
-class ObjectModel:
-    """A named union of primitives in its OBJECT frame (origin at the object sensor, +z up).
+class SolidObject:
+    """What the exploration, the sessions, the ground truth and the stereo rig ask of an
+    object, whatever it is made of (a union of primitives here, a triangle mesh in
+    :mod:`inhand_sim.mesh_objects`). Coordinates are metres in its OBJECT frame (the object
+    sensor's frame), +z up.
 
-    ``table_z``: height of the plane the object stands on (object frame);
-    ``static_grip``: where the other hand holds it on the table; ``moving_grips``: the
-    successive grips of a hand-held session (one more at each re-grasp, cycling);
-    ``second_sensor``: pose (position, quaternion x, y, z, w) of a second object sensor
-    rigidly attached to the object, object frame.
+    ``table_z``: height of the plane the object stands on; ``static_grip``: where the other
+    hand holds it on the table; ``moving_grips``: the successive grips of a hand-held
+    session (one more at each re-grasp, cycling); ``second_sensor``: pose (position,
+    quaternion x, y, z, w) of a second object sensor rigidly attached to it; ``texture``:
+    its painting in :mod:`inhand_sim.textures`.
     """
+    name: str
+    table_z: float
+    static_grip: HeldRegion
+    moving_grips: list
+    second_sensor: tuple
+    nominal_size: tuple
+    description: str
+
+    @property
+    def texture(self) -> str:
+        return self.name
+
+    def sdf_grad(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance (N,) (negative inside) and its gradient (N, 3) at points (N, 3)."""
+        raise NotImplementedError
+
+    def sdf(self, points) -> np.ndarray:
+        return self.sdf_grad(points)[0]
+
+    def normals(self, points) -> np.ndarray:
+        """Outward unit normals (normalised SDF gradient) at points on or near the surface."""
+        return _normalize(self.sdf_grad(points)[1])
+
+    def project_to_surface(self, points) -> np.ndarray:
+        """The surface points nearest to ``points`` (N, 3), on the surface itself."""
+        raise NotImplementedError
+
+    def sample_surface(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` points (n, 3) uniform by area on the surface and their outward normals."""
+        raise NotImplementedError
+
+    def surface_area(self) -> float:
+        """Area of the surface, m^2."""
+        raise NotImplementedError
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """Axis-aligned bounding box (2, 3), object frame."""
+        raise NotImplementedError
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Centre of the bounding box, object frame."""
+        return self.bounds.mean(axis=0)
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.bounds[1] - self.bounds[0]
+
+    def _newton(self, p: np.ndarray, iterations: int, tolerance: float) -> np.ndarray:
+        """Newton steps ``p <- p - f grad f / |grad f|^2`` along the SDF gradient (in place)
+        until ``|f| < tolerance``: onto the zero set of :meth:`sdf_grad`."""
+        active = np.arange(len(p))
+        for _ in range(iterations):
+            d, g = self.sdf_grad(p[active])
+            todo = np.abs(d) >= tolerance
+            if not todo.any():
+                break
+            active, d, g = active[todo], d[todo], g[todo]
+            g2 = np.maximum(np.sum(g * g, axis=1), 1e-300)
+            p[active] -= (d / g2)[:, None] * g
+        return p
+
+
+@dataclass
+class ObjectModel(SolidObject):
+    """A named union of primitives in its OBJECT frame (origin at the object sensor, +z up);
+    the fields as :class:`SolidObject` has them."""
     name: str
     primitives: list
     table_z: float
@@ -537,7 +611,9 @@ class ObjectModel:
 
     # --- distances -------------------------------------------------------------------------
     def sdf_grad(self, points, chunk: int = 65536) -> tuple[np.ndarray, np.ndarray]:
-        """Union SDF (see the module docstring) and its gradient (unit for exact primitives)."""
+        """Union SDF (negative inside: exact outside exact primitives, a lower bound of the
+        distance otherwise, see the module docstring) and its gradient (unit for exact
+        primitives)."""
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         n = len(points)
         d = np.full(n, np.inf)
@@ -568,15 +644,6 @@ class ObjectModel:
             self._group_cache = (packed, others)
         return self._group_cache
 
-    def sdf(self, points) -> np.ndarray:
-        """Signed distance (negative inside): exact outside exact primitives, a lower bound
-        of the distance otherwise (see the module docstring)."""
-        return self.sdf_grad(points)[0]
-
-    def normals(self, points) -> np.ndarray:
-        """Outward unit normals (normalised SDF gradient) at points on or near the surface."""
-        return _normalize(self.sdf_grad(points)[1])
-
     def project_to_surface(self, points, iterations: int = 30, tolerance: float = 1e-12
                            ) -> np.ndarray:
         """Points moved onto the surface by Newton steps along the SDF gradient,
@@ -593,18 +660,6 @@ class ObjectModel:
             for i in stuck:
                 p[i] = anchors[np.argmin(np.sum((anchors - p[i]) ** 2, axis=1))]
             p[stuck] = self._newton(p[stuck], iterations, tolerance)
-        return p
-
-    def _newton(self, p: np.ndarray, iterations: int, tolerance: float) -> np.ndarray:
-        active = np.arange(len(p))
-        for _ in range(iterations):
-            d, g = self.sdf_grad(p[active])
-            todo = np.abs(d) >= tolerance
-            if not todo.any():
-                break
-            active, d, g = active[todo], d[todo], g[todo]
-            g2 = np.maximum(np.sum(g * g, axis=1), 1e-300)
-            p[active] -= (d / g2)[:, None] * g
         return p
 
     def _anchors(self) -> np.ndarray:
@@ -663,15 +718,6 @@ class ObjectModel:
             boxes = np.stack([p.bounds() for p in self.primitives])
             self._bounds = np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
         return self._bounds
-
-    @property
-    def centre(self) -> np.ndarray:
-        """Centre of the bounding box, object frame."""
-        return self.bounds.mean(axis=0)
-
-    @property
-    def size(self) -> np.ndarray:
-        return self.bounds[1] - self.bounds[0]
 
 
 # --- the objects ---------------------------------------------------------------------------

@@ -6,16 +6,16 @@ A session is
   ``static_centre`` (default [0.25, 0.0, 0.05] m, the centre of config/mapping_static.yaml's
   workspace) in the tracker frame ``polhemus_source`` (x forward, y right, z down: the
   object's up is the tracker's -z). The other hand holds it still at its top
-  (``ObjectModel.static_grip``); no object sensor is published. Stations: thumb, index,
+  (``SolidObject.static_grip``); no object sensor is published. Stations: thumb, index,
   middle.
 * **moving** (non-static): the other hand holds the object in the air around
   ``moving_centre``; it drifts (a few cm) and sways (about 10 degrees) all the time, and at
   each **re-grasp** (about every ``regrasp_interval`` s; at least one when the session is
   long enough) the exploring fingers all leave the object, the other hand turns it by
-  60-120 degrees and takes it at another place (the next of ``ObjectModel.moving_grips``),
+  60-120 degrees and takes it at another place (the next of ``SolidObject.moving_grips``),
   and the exploration resumes. The object sensor (station ``object``) is the OBJECT frame;
   optionally a second one (``object2``) is rigidly attached at
-  ``ObjectModel.second_sensor``. Stations: thumb, index, middle, object (, object2).
+  ``SolidObject.second_sensor``. Stations: thumb, index, middle, object (, object2).
 
 Fingertip positions in the tracker frame are the object pose applied to the object-frame
 fingertip positions of :mod:`inhand_sim.exploration`, plus tracker noise (Gaussian per axis,
@@ -61,8 +61,9 @@ from inhand_common.rotations import (
     slerp,
 )
 from inhand_mapping.pose_cdr import encode_pose_stamped
+from inhand_sim.catalogue import load_object
 from inhand_sim.exploration import FINGERS, Exploration, ExplorationSettings, TrackerNoise, explore
-from inhand_sim.objects import ObjectModel, get_object
+from inhand_sim.objects import SolidObject
 from inhand_sim.stereo_rig import DEFAULT_VIEW_DIRECTION, RenderedPair, StereoRig, render_pair
 from inhand_sim.textures import surface_colour
 
@@ -82,11 +83,14 @@ MSGTYPE = 'geometry_msgs/msg/PoseStamped'
 @dataclass(frozen=True)
 class SessionSettings:
     """Everything that decides a session (all of it goes into ``settings_json``)."""
-    object_name: str = 'cat'
+    object_name: str = 'cat'             # a built-in object, a shipped mesh or a mesh file
+                                          # (inhand_sim.catalogue)
+    mesh_scale: float = 1.0               # meshes: metres per unit of the file
+    mesh_up: str = 'z'                    # meshes: the file's axis that points up
     static: bool = True
     regrasp: bool = True                  # moving sessions: re-grasps by the other hand
     second_object_sensor: bool = False    # moving sessions: also publish 'object2'
-    rate: float = 15.0                    # Hz: 15 (the paper) or 240 (the device)
+    rate: float = 15.0                    # Hz: 15 (the paper), 30, 120 or 240 (the device's two)
     duration: float = 60.0                # s
     seed: int = 0
     noise_mm: float = 1.0                 # fingertip tracker noise, per axis
@@ -140,6 +144,8 @@ class SessionSettings:
         if self.camera_elevation_deg is not None and not -80 <= self.camera_elevation_deg <= 89:
             problems.append(f'camera_elevation_deg {self.camera_elevation_deg} must be in '
                             '[-80, 89] degrees')
+        if not (self.mesh_scale > 0 and math.isfinite(self.mesh_scale)):
+            problems.append(f'mesh_scale {self.mesh_scale} must be a positive number')
         if self.static and self.second_object_sensor:
             problems.append('a static session has no object sensor, so no second one either')
         if problems:
@@ -148,10 +154,12 @@ class SessionSettings:
     def to_json(self) -> str:
         # The viewpoint keys only when set, so sessions made before they existed (the
         # bundled bags) are written byte for byte as they were.
-        # So is the number of pairs when it is the one pair they had.
+        # So is the number of pairs when it is the one pair they had, and the mesh's scale
+        # and up axis when they are the file's own.
+        unset = {'camera_azimuth_deg': None, 'camera_elevation_deg': None, 'stereo_shots': 1,
+                 'mesh_scale': 1.0, 'mesh_up': 'z'}
         values = {key: value for key, value in asdict(self).items()
-                  if not (key in ('camera_azimuth_deg', 'camera_elevation_deg')
-                          and value is None) and not (key == 'stereo_shots' and value == 1)}
+                  if not (key in unset and value == unset[key])}
         return json.dumps(values, sort_keys=True, separators=(',', ':'))
 
     @property
@@ -174,7 +182,7 @@ class SessionSettings:
 class SimulatedSession:
     """A simulated session in memory: what goes into the bag, and the ground truth."""
     settings: SessionSettings
-    object: ObjectModel
+    object: SolidObject
     stations: tuple                # station names in publishing order
     stamps_ns: np.ndarray          # (T,) int64
     poses: np.ndarray              # (S, T, 7): x, y, z, qx, qy, qz, qw in the tracker frame
@@ -201,7 +209,7 @@ class SimulatedSession:
 
 # --- object motion -----------------------------------------------------------------------
 
-def _static_pose(settings: SessionSettings, obj: ObjectModel):
+def _static_pose(settings: SessionSettings, obj: SolidObject):
     """Constant pose: the object upright (object +z = tracker -z), its centre at
     ``static_centre``."""
     q = quaternion_multiply(euler_zyx_to_quaternion(math.radians(settings.static_yaw_deg), 0.0, 0.0),
@@ -229,7 +237,7 @@ def _regrasp_times(settings: SessionSettings, rng: np.random.Generator) -> list:
     return [(t, t + w) for t in times]
 
 
-def _moving_pose(settings: SessionSettings, obj: ObjectModel, windows: list,
+def _moving_pose(settings: SessionSettings, obj: SolidObject, windows: list,
                  rng: np.random.Generator) -> Callable:
     """The hand-held object's pose as a function of time (s from the first frame):
     drifting and swaying all the time, turned substantially at each re-grasp, about its
@@ -286,7 +294,7 @@ def _moving_pose(settings: SessionSettings, obj: ObjectModel, windows: list,
 
 # --- the simulation ----------------------------------------------------------------------
 
-def _fingertip_orientations(obj: ObjectModel, p_obj: np.ndarray, q_obj: np.ndarray) -> np.ndarray:
+def _fingertip_orientations(obj: SolidObject, p_obj: np.ndarray, q_obj: np.ndarray) -> np.ndarray:
     """Fingertip sensor orientations in the tracker frame: z along the outward normal
     there (object frame), x along the object's x as far as it goes, composed with the object's."""
     n = obj.normals(p_obj)
@@ -302,7 +310,7 @@ def simulate(settings: SessionSettings, progress: Callable[[str], None] | None =
              ) -> SimulatedSession:
     """Simulate a session: deterministic in ``settings`` (seeded numpy Generators)."""
     say = progress or (lambda message: None)
-    obj = get_object(settings.object_name)
+    obj = load_object(settings.object_name, settings.mesh_scale, settings.mesh_up)
     seeds = np.random.SeedSequence(settings.seed).spawn(5)
     rng_surface, rng_motion, rng_explore, rng_noise, rng_object_noise = (
         np.random.default_rng(s) for s in seeds)
@@ -386,13 +394,13 @@ def simulate(settings: SessionSettings, progress: Callable[[str], None] | None =
                                            / settings.stereo_shots)]
         shots = [(k, _stereo_shot(settings, obj, obj_pos[k], obj_q[k], number))
                  for number, k in enumerate(frames)]
-        truth.update(_stereo_truth(settings, shots[0][1], surface, times_s[0]))
+        truth.update(_stereo_truth(obj, shots[0][1], surface, times_s[0]))
     return SimulatedSession(settings=settings, object=obj, stations=tuple(stations),
                             stamps_ns=stamps_ns, poses=poses, exploration=exploration,
                             truth=truth, regrasp_windows=windows, stereo_shots=shots)
 
 
-def _stereo_shot(settings: SessionSettings, obj: ObjectModel, position: np.ndarray,
+def _stereo_shot(settings: SessionSettings, obj: SolidObject, position: np.ndarray,
                  quaternion: np.ndarray, number: int = 0) -> RenderedPair:
     """The ``number``-th pair the rig takes of the object, at the pose given: static objects
     on their table, held objects in the air (the backdrop behind them either way). The rig
@@ -407,11 +415,11 @@ def _stereo_shot(settings: SessionSettings, obj: ObjectModel, position: np.ndarr
     return render_pair(rig, obj, (position, quaternion), rng, table=settings.static)
 
 
-def _stereo_truth(settings: SessionSettings, shot: RenderedPair, surface: np.ndarray,
+def _stereo_truth(obj: SolidObject, shot: RenderedPair, surface: np.ndarray,
                   stamp: float) -> dict:
     """The truth file's stereo keys (inhand_common.ground_truth.STEREO_KEYS)."""
     return {
-        'surface_colours': surface_colour(settings.object_name, surface),
+        'surface_colours': surface_colour(obj.texture, surface),
         'camera_pose': np.asarray(shot.camera_pose, dtype=np.float64),
         'stereo_time': np.array(float(stamp)),
         'stereo_depth': shot.depth.astype(np.float32),

@@ -1,9 +1,10 @@
 """A calibrated virtual stereo rig that renders image pairs of the simulated objects.
 
-The images are ray-cast against the objects' exact signed distance functions
-(:mod:`inhand_sim.objects`) and painted with their procedural textures
-(:mod:`inhand_sim.textures`), so every pixel has an exact truth: which surface it sees, how
-far away, at what disparity, in what colour.
+The images are ray-cast against the objects' signed distance functions (exact for the
+unions of primitives of :mod:`inhand_sim.objects`; a mesh's distance grid, within a fraction
+of a millimetre of its triangles, for :mod:`inhand_sim.mesh_objects`) and painted with their
+procedural textures (:mod:`inhand_sim.textures`), so every pixel has an exact truth: which
+surface it sees, how far away, at what disparity, in what colour.
 
 Conventions
 -----------
@@ -54,11 +55,12 @@ everywhere instead (a reference render). Camera effects, in the raw image: Gauss
 grey levels are albedo times shading.
 
 Speed: the sphere tracing (and the shadow rays, and the shading) run in compiled kernels
-(numba) over a packed copy of the object's primitives, whose distances equal
-:meth:`ObjectModel.sdf`'s (a test holds them to 1e-12); rays march only inside the object's
-bounding box, skipping primitives whose bounding sphere is farther than the nearest so far,
-and stop within 10 um of the surface. The hits are then evaluated with the object's own
-``sdf_grad`` (normals, and the residual |sdf| reported in ``RenderedPair.max_sdf_residual``).
+(numba) over a packed copy of the object's primitives (or of a mesh's distance grid, the
+same trilinear arithmetic), whose distances equal the object's ``sdf`` (a test holds them to
+1e-12); rays march only inside the object's bounding box, skipping primitives whose bounding
+sphere is farther than the nearest so far, and stop within 10 um of the surface. The hits
+are then evaluated with the object's own ``sdf_grad`` (normals, and the residual |sdf|
+reported in ``RenderedPair.max_sdf_residual``).
 A 640 x 480 pair takes about 0.7-1 s on one core (the first call in a fresh cache compiles
 the kernels: 10-20 s, then cached beside the module).
 """
@@ -82,7 +84,9 @@ from inhand_common.rotations import (
     quaternion_normalize,
     quaternion_to_matrix,
 )
-from inhand_sim.objects import ArcTube, Ellipsoid, ObjectModel, RevolvedBox, RoundCone, Sphere, get_object
+from inhand_sim.catalogue import load_object
+from inhand_sim.mesh_objects import MeshObject
+from inhand_sim.objects import ArcTube, Ellipsoid, ObjectModel, RevolvedBox, RoundCone, SolidObject, Sphere
 from inhand_sim.textures import SHININESS, backdrop_colour, surface_appearance, table_colour
 from inhand_stereo.camera_model import CameraModel
 
@@ -143,12 +147,12 @@ def look_at_pose(target, direction, distance: float, roll_deg: float = 0.0) -> t
     return tuple(float(v) for v in (*position, *q))
 
 
-def static_object_pose(obj: ObjectModel | str, centre=DEFAULT_TARGET, yaw_deg: float = 0.0
+def static_object_pose(obj: SolidObject | str, centre=DEFAULT_TARGET, yaw_deg: float = 0.0
                        ) -> tuple[np.ndarray, np.ndarray]:
     """The pose (position, quaternion xyzw) of a static session's object (the formula of
     ``inhand_sim.session``): upright (object +z = tracker -z), its bounding-box centre at
     ``centre``, turned by ``yaw_deg`` about the vertical."""
-    obj = get_object(obj) if isinstance(obj, str) else obj
+    obj = load_object(obj) if isinstance(obj, str) else obj
     q = quaternion_normalize(quaternion_multiply(
         euler_zyx_to_quaternion(math.radians(yaw_deg), 0.0, 0.0),
         euler_zyx_to_quaternion(0.0, 0.0, math.pi)))
@@ -162,7 +166,7 @@ class Plane(NamedTuple):
     normal: np.ndarray
 
 
-def table_plane(obj: ObjectModel, object_pose) -> Plane:
+def table_plane(obj: SolidObject, object_pose) -> Plane:
     """The table the object stands on (the plane ``z = table_z`` of the object frame) in the
     tracker frame, normal up out of the table. Meaningful for an upright, static object."""
     position, q = _pose(object_pose)
@@ -338,7 +342,7 @@ def _compiled(function: _Function) -> _Function:
     return cast(_Function, numba.njit(cache=True, nogil=True)(function))
 
 
-_SPHERE, _ROUND_CONE, _ELLIPSOID, _REVOLVED_BOX, _ARC_TUBE = range(5)
+_SPHERE, _ROUND_CONE, _ELLIPSOID, _REVOLVED_BOX, _ARC_TUBE, _GRID = range(6)
 _HIT_EPS = 1e-5          # m: sphere tracing stops this close to the surface
 _GRAZING = 1e-4          # m: a ray out of steps this close counts as a hit
 _MAX_STEPS = 1000
@@ -348,10 +352,20 @@ _SHADOW_REACH = 0.05     # m around the object where its penumbra is computed (t
 _PARAMS = 24          # per primitive: its own up to 17, then a bounding sphere at 20..23
 
 
-def _pack(obj: ObjectModel) -> tuple[np.ndarray, np.ndarray]:
-    """The object's primitives as (kinds (P,), params (P, 24)) for the compiled kernels:
-    the quantities the primitives' numpy ``sdf_grad`` use, and a bounding sphere (centre,
-    radius) of each at 20..23."""
+def _pack(obj: SolidObject) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The object as (kinds (P,), params (P, 24), grid) for the compiled kernels: each
+    primitive's quantities that its numpy ``sdf_grad`` uses and a bounding sphere (centre,
+    radius) at 20..23; a mesh as one ``_GRID`` entry (the distance grid's origin, spacing,
+    shape and the mesh's box) with its grid values (a 1 x 1 x 1 dummy for primitives)."""
+    if isinstance(obj, MeshObject):
+        grid = obj.grid
+        row = np.zeros((1, _PARAMS))
+        row[0, 0:3], row[0, 3], row[0, 4:7] = grid.origin, grid.spacing, grid.values.shape
+        row[0, 7:10], row[0, 10:13] = grid.box[0], grid.box[1]
+        row[0, 20:23], row[0, 23] = obj.centre, 0.0
+        return np.array([_GRID], dtype=np.int64), row, np.ascontiguousarray(grid.values)
+    if not isinstance(obj, ObjectModel):
+        raise TypeError(f'stereo_rig cannot ray-cast a {type(obj).__name__}')
     kinds = np.zeros(len(obj.primitives), dtype=np.int64)
     params = np.zeros((len(obj.primitives), _PARAMS))
     for i, prim in enumerate(obj.primitives):
@@ -387,11 +401,49 @@ def _pack(obj: ObjectModel) -> tuple[np.ndarray, np.ndarray]:
         box = prim.bounds()
         row[20:23] = box.mean(axis=0)
         row[23] = 0.5 * np.linalg.norm(box[1] - box[0])
-    return kinds, params
+    return kinds, params, np.zeros((1, 1, 1))
 
 
 @_compiled
-def _primitive_sdf(kind, q, x, y, z):
+def _grid_sdf(q, grid, x, y, z):
+    """The distance grid's value at a point (DistanceGrid.evaluate's arithmetic, in the same
+    order, so that the two agree to the last bits): trilinear inside, the lower bound
+    outside."""
+    h = q[3]
+    u = ((x - q[0]) / h, (y - q[1]) / h, (z - q[2]) / h)
+    c = np.empty(3)
+    f = np.empty(3)
+    index = np.empty(3, dtype=np.int64)
+    away2 = 0.0
+    for axis in range(3):
+        top = q[4 + axis] - 1.0
+        c[axis] = min(max(u[axis], 0.0), top)
+        index[axis] = min(int(math.floor(c[axis])), int(top) - 1)
+        f[axis] = c[axis] - index[axis]
+        away2 += ((u[axis] - c[axis]) * h) ** 2
+    i, j, k = index[0], index[1], index[2]
+    fx, fy, fz = f[0], f[1], f[2]
+    c00 = grid[i, j, k] + fz * (grid[i, j, k + 1] - grid[i, j, k])
+    c01 = grid[i, j + 1, k] + fz * (grid[i, j + 1, k + 1] - grid[i, j + 1, k])
+    c10 = grid[i + 1, j, k] + fz * (grid[i + 1, j, k + 1] - grid[i + 1, j, k])
+    c11 = grid[i + 1, j + 1, k] + fz * (grid[i + 1, j + 1, k + 1] - grid[i + 1, j + 1, k])
+    c0 = c00 + fy * (c01 - c00)
+    c1 = c10 + fy * (c11 - c10)
+    d = c0 + fx * (c1 - c0)
+    if away2 > 0.0:
+        lower = d - math.sqrt(away2)
+        bx = x - min(max(x, q[7]), q[10])
+        by = y - min(max(y, q[8]), q[11])
+        bz = z - min(max(z, q[9]), q[12])
+        box = math.sqrt(bx * bx + by * by + bz * bz)
+        d = box if box > lower else lower
+    return d
+
+
+@_compiled
+def _primitive_sdf(kind, q, grid, x, y, z):
+    if kind == 5:    # a mesh's distance grid
+        return _grid_sdf(q, grid, x, y, z)
     if kind == 0:    # Sphere
         return math.sqrt((x - q[0]) ** 2 + (y - q[1]) ** 2 + (z - q[2]) ** 2) - q[3]
     if kind == 1:    # RoundCone
@@ -445,17 +497,17 @@ def _primitive_sdf(kind, q, x, y, z):
 
 
 @_compiled
-def _union_sdf(kinds, params, x, y, z):
+def _union_sdf(kinds, params, grid, x, y, z):
     best = math.inf
     for i in range(kinds.shape[0]):
-        d = _primitive_sdf(kinds[i], params[i], x, y, z)
+        d = _primitive_sdf(kinds[i], params[i], grid, x, y, z)
         if d < best:
             best = d
     return best
 
 
 @_compiled
-def _union_bound(kinds, params, x, y, z):
+def _union_bound(kinds, params, grid, x, y, z):
     """A lower bound of the distance to the union, for sphere tracing: primitives whose
     bounding sphere is farther than the best so far are skipped (their distance is at least
     that far). Near the surface it is the union SDF itself."""
@@ -465,16 +517,16 @@ def _union_bound(kinds, params, x, y, z):
         reach = math.sqrt((x - q[20]) ** 2 + (y - q[21]) ** 2 + (z - q[22]) ** 2) - q[23]
         if reach >= best:
             continue
-        d = _primitive_sdf(kinds[i], q, x, y, z)
+        d = _primitive_sdf(kinds[i], q, grid, x, y, z)
         if d < best:
             best = d
     return best
 
 
 @_compiled
-def _sdf_points(points, kinds, params, out):
+def _sdf_points(points, kinds, params, grid, out):
     for i in range(points.shape[0]):
-        out[i] = _union_sdf(kinds, params, points[i, 0], points[i, 1], points[i, 2])
+        out[i] = _union_sdf(kinds, params, grid, points[i, 0], points[i, 1], points[i, 2])
 
 
 @_compiled
@@ -493,7 +545,7 @@ def _box_interval(ox, oy, oz, dx, dy, dz, lo, hi):
 
 
 @_compiled
-def _march(ox, oy, oz, dx, dy, dz, t, t_end, kinds, params):
+def _march(ox, oy, oz, dx, dy, dz, t, t_end, kinds, params, grid):
     """Sphere tracing of a unit-direction ray from ``t`` to ``t_end``: the first t with
     sdf < _HIT_EPS (inf if none). A ray that runs out of steps still close to the surface
     (a grazing ray, sdf < _GRAZING) counts as a hit there."""
@@ -501,7 +553,7 @@ def _march(ox, oy, oz, dx, dy, dz, t, t_end, kinds, params):
     for _ in range(_MAX_STEPS):
         if t > t_end:
             return math.inf
-        h = _union_bound(kinds, params, ox + t * dx, oy + t * dy, oz + t * dz)
+        h = _union_bound(kinds, params, grid, ox + t * dx, oy + t * dy, oz + t * dz)
         if h < _HIT_EPS:
             return t
         t += h
@@ -518,7 +570,7 @@ def _to_object(rot, pos, x, y, z):
 
 
 @_compiled
-def _trace(origin, dirs, rot, pos, lo, hi, kinds, params, plane_points, plane_normals,
+def _trace(origin, dirs, rot, pos, lo, hi, kinds, params, grid, plane_points, plane_normals,
            plane_labels, t_out, label_out):
     """First surface along each unit ray from ``origin`` (tracker frame): the object (sphere
     tracing inside its bounding box) or one of the planes. inf and label 255: nothing."""
@@ -530,7 +582,7 @@ def _trace(origin, dirs, rot, pos, lo, hi, kinds, params, plane_points, plane_no
         t_in, t_exit = _box_interval(ox, oy, oz, dx, dy, dz, lo, hi)
         t_in = max(t_in, 0.0)
         if t_exit > t_in:
-            best = _march(ox, oy, oz, dx, dy, dz, t_in, t_exit, kinds, params)
+            best = _march(ox, oy, oz, dx, dy, dz, t_in, t_exit, kinds, params, grid)
             if best < math.inf:
                 label = 2
         for k in range(plane_points.shape[0]):
@@ -549,7 +601,7 @@ def _trace(origin, dirs, rot, pos, lo, hi, kinds, params, plane_points, plane_no
 
 @_compiled
 def _shade_kernel(points, normals, labels, albedo, gloss, shininess, eye, light, rot, pos, lo,
-                  hi, kinds, params, ambient, diffuse, specular, shadows, out):
+                  hi, kinds, params, grid, ambient, diffuse, specular, shadows, out):
     """Lambert + ambient, Phong highlights (white), soft shadows cast by the object (the
     usual SDF penumbra ``min(k sdf / t)`` along the segment to the light): grey levels."""
     zero = np.zeros(3)
@@ -575,7 +627,7 @@ def _shade_kernel(points, normals, labels, albedo, gloss, shininess, eye, light,
                 for _ in range(400):
                     if t > t_end:
                         break
-                    h = _union_bound(kinds, params, ox + t * dx, oy + t * dy, oz + t * dz)
+                    h = _union_bound(kinds, params, grid, ox + t * dx, oy + t * dy, oz + t * dz)
                     if h < 1e-6:
                         vis = 0.0
                         break
@@ -592,12 +644,12 @@ def _shade_kernel(points, normals, labels, albedo, gloss, shininess, eye, light,
             out[i, c] = albedo[i, c] * shade + 255.0 * highlight * vis
 
 
-def compiled_sdf(obj: ObjectModel, points) -> np.ndarray:
+def compiled_sdf(obj: SolidObject, points) -> np.ndarray:
     """The object's SDF by the compiled kernel the renderer uses (equal to ``obj.sdf``)."""
-    kinds, params = _pack(obj)
+    kinds, params, grid = _pack(obj)
     p = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
     out = np.empty(len(p))
-    _sdf_points(p, kinds, params, out)
+    _sdf_points(p, kinds, params, grid, out)
     return out
 
 
@@ -605,16 +657,17 @@ def compiled_sdf(obj: ObjectModel, points) -> np.ndarray:
 
 @dataclass
 class _Scene:
-    obj: ObjectModel
+    obj: SolidObject
     position: np.ndarray       # object pose
     rotation: np.ndarray
     planes: list               # (label, Plane)
     light: np.ndarray          # tracker frame
     kinds: np.ndarray = field(init=False)
     params: np.ndarray = field(init=False)
+    grid: np.ndarray = field(init=False)
 
     def __post_init__(self):
-        self.kinds, self.params = _pack(self.obj)
+        self.kinds, self.params, self.grid = _pack(self.obj)
         self.lo = self.obj.bounds[0] - _BOX_MARGIN
         self.hi = self.obj.bounds[1] + _BOX_MARGIN
         self.plane_points = np.array([p.point for _, p in self.planes], dtype=float).reshape(-1, 3)
@@ -638,7 +691,7 @@ def _cast(scene: _Scene, origin: np.ndarray, dirs: np.ndarray) -> _Cast:
     t = np.empty(n)
     label = np.empty(n, dtype=np.uint8)
     _trace(np.asarray(origin, dtype=float), dirs, scene.rotation, scene.position, scene.lo,
-           scene.hi, scene.kinds, scene.params, scene.plane_points, scene.plane_normals,
+           scene.hi, scene.kinds, scene.params, scene.grid, scene.plane_points, scene.plane_normals,
            scene.plane_labels, t, label)
     if np.any(label == 255):
         raise ValueError('a ray meets nothing: the backdrop must face the cameras')
@@ -654,7 +707,7 @@ def _cast(scene: _Scene, origin: np.ndarray, dirs: np.ndarray) -> _Cast:
         residual = float(np.max(np.abs(sdf)))
         n_obj = grad / np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-300)
         normals[on_object] = n_obj @ scene.rotation.T
-        albedo[on_object], gloss[on_object] = surface_appearance(scene.obj.name, p_obj)
+        albedo[on_object], gloss[on_object] = surface_appearance(scene.obj.texture, p_obj)
     for plane_label, plane in scene.planes:
         sel = np.flatnonzero(label == plane_label)
         if not sel.size:
@@ -675,14 +728,15 @@ def _cast(scene: _Scene, origin: np.ndarray, dirs: np.ndarray) -> _Cast:
 def _shade(scene: _Scene, cast_: _Cast, eye: np.ndarray, *, ambient: float, diffuse: float,
            specular: float, shadows: bool) -> np.ndarray:
     """Linear RGB in grey levels (N, 3) float (see _shade_kernel)."""
-    shininess = np.where(cast_.label == OBJECT, SHININESS[scene.obj.name], 10.0)
+    shininess = np.where(cast_.label == OBJECT, SHININESS[scene.obj.texture], 10.0)
     out = np.empty((len(cast_.t), 3))
     # The penumbra reaches beyond the object: the shadow rays test a box padded by the
     # distance where 12 sdf / t reaches 1 for t up to _SHADOW_REACH * 12.
     pad = _SHADOW_REACH - _BOX_MARGIN
     _shade_kernel(cast_.points, cast_.normals, cast_.label, cast_.albedo, cast_.gloss, shininess,
                   np.asarray(eye, dtype=float), scene.light, scene.rotation, scene.position,
-                  scene.lo - pad, scene.hi + pad, scene.kinds, scene.params, float(ambient), float(diffuse),
+                  scene.lo - pad, scene.hi + pad, scene.kinds, scene.params, scene.grid, float(ambient),
+                  float(diffuse),
                   float(specular), bool(shadows), out)
     return out
 
@@ -815,7 +869,7 @@ def _camera_effects(image: np.ndarray, rng: np.random.Generator, blur_sigma: flo
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
-def render_pair(rig: StereoRig, obj: ObjectModel | str, object_pose, rng: np.random.Generator, *,
+def render_pair(rig: StereoRig, obj: SolidObject | str, object_pose, rng: np.random.Generator, *,
                 distortion=None, rectification=None, table: bool | Plane = False,
                 backdrop: Plane | None = None, backdrop_distance: float = 0.25,
                 light: Sequence[float] = DEFAULT_LIGHT, ambient: float = 0.35,
@@ -836,7 +890,7 @@ def render_pair(rig: StereoRig, obj: ObjectModel | str, object_pose, rng: np.ran
     along each axis at the pixels where the surface seen changes (silhouettes, occlusions:
     the only hard edges, the textures being band-limited); 1 for none."""
     started = time.perf_counter()
-    obj = get_object(obj) if isinstance(obj, str) else obj
+    obj = load_object(obj) if isinstance(obj, str) else obj
     position, q = _pose(object_pose)
     rotation = quaternion_to_matrix(q)
     if int(supersample) < 1 or int(edge_samples) < 1:

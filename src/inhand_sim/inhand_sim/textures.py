@@ -23,6 +23,11 @@ some surfaces nearly uniform, where block matching is expected to struggle):
 * ``mug``: cream glaze with faint specks (weak texture, glossy), printed cobalt flowers in a
   staggered pattern between two blue bands on the outside (strong texture), a plain inside
   (weak texture), and an unglazed tan foot ring underneath.
+* the shipped meshes (:mod:`inhand_sim.catalogue`; solid textures in their frames, centred on
+  their bounding boxes): ``cup`` celadon glaze, mottled where it pools, with iron specks, a
+  dark band under the rim and a bare clay foot; ``animal`` oiled walnut (grain, late-wood
+  bands, pores); ``duck`` yellow paint with brush marks, an orange beak, dark eyes, a grey
+  base; and ``scan``, any other mesh: mottled, speckled plaster.
 
 The patterns are band-limited so that images sampled at one ray per pixel do not alias: noise
 blobs are at least about 1.5 mm across (a couple of pixels at 0.4 m with a 600 px focal
@@ -52,7 +57,8 @@ __all__ = [
 ]
 
 # Phong exponent of each object's glossy parts (the highlight's tightness).
-SHININESS = {'cat': 12.0, 'bottle': 70.0, 'mug': 40.0}
+SHININESS = {'cat': 12.0, 'bottle': 70.0, 'mug': 40.0, 'cup': 45.0, 'animal': 15.0, 'duck': 25.0,
+             'scan': 8.0}
 
 _M32 = _MASK32 = np.uint64(0xFFFFFFFF)
 _PRIMES = (np.uint64(0x8DA6B343), np.uint64(0xD8163841), np.uint64(0xCB1AB31F),
@@ -423,17 +429,82 @@ def _mug(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return colour, gloss
 
 
-_OBJECTS = {'cat': _cat, 'bottle': _bottle, 'mug': _mug}
+# The meshes (inhand_sim.catalogue): object frame at the centre of the mesh's bounding box,
+# so the patterns are solid textures that need no more of the shape than that.
+_CELADON = np.array([150.0, 178.0, 160.0])
+_FOOT_CLAY = np.array([190.0, 150.0, 112.0])
 
 
-def surface_appearance(object_name: str, points, normals=None) -> tuple[np.ndarray, np.ndarray]:
-    """Colour (N, 3) uint8 RGB and specular weight (N,) in [0, 1] of the object's surface at
-    object-frame points (N, 3) (see :func:`surface_colour`)."""
+def _cup(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # Celadon glaze, darker where it pools (fbm), iron specks, a dark band near the rim
+    # (cup.ply: 9.5 cm tall, the rim at z = +4.76 cm) and the bare clay foot under 1 cm.
+    z = p[:, 2]
+    colour = _CELADON * (0.86 + 0.28 * fbm(p, 0.012, 3, seed=61))[:, None]
+    specks = _smoothstep(0.88, 0.95, value_noise(p, 0.0016, seed=62))
+    _paint(colour, 0.7 * specks, [70.0, 58.0, 44.0])
+    _paint(colour, 0.8 * _cover(np.abs(z - 0.0395) - 0.0025), [62.0, 92.0, 84.0])
+    gloss = np.full(len(p), 0.55)
+    foot = _cover(z - (-0.0376 + 0.0015 * (fbm(p, 0.01, 2, seed=63) - 0.5)))
+    sel = np.flatnonzero(foot > 0.0)
+    if sel.size:
+        clay = _FOOT_CLAY * (0.88 + 0.24 * fbm(p[sel], 0.003, 2, seed=64))[:, None]
+        colour[sel] = _mix(colour[sel], clay, foot[sel])
+        gloss[sel] = _mix_scalar(gloss[sel], 0.05, foot[sel])
+    return colour, gloss
+
+
+def _animal(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # Oiled walnut: grain along the body (x), darker late wood, pores; a little shine.
+    streaks = value_noise(p, (0.012, 0.0016, 0.0016), seed=71)
+    bands = (p[:, 2] / 0.004 + 3.0 * fbm(p, 0.03, 2, seed=72)) % 1.0
+    late = _smoothstep(0.5, 0.75, bands) * (1.0 - _smoothstep(0.85, 0.98, bands))
+    colour = _mix([168.0, 118.0, 78.0], [92.0, 58.0, 36.0], 0.55 * late + 0.45 * streaks)
+    pores = _smoothstep(0.78, 0.86, value_noise(p, (0.005, 0.0012, 0.0012), seed=73))
+    _paint(colour, 0.5 * pores, [60.0, 38.0, 24.0])
+    colour *= (0.9 + 0.2 * fbm(p, 0.025, 2, seed=74))[:, None]
+    return colour, np.full(len(p), 0.2)
+
+
+def _duck(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # Yellow paint with brush marks, an orange beak (duck.ply: the part beyond x = +5 cm above
+    # z = +1.2 cm), dark eyes on the head (centre about (2.8, 0, 2.6) cm), a grey base.
+    x, z = p[:, 0], p[:, 2]
+    colour = np.array([236.0, 196.0, 52.0]) * (0.84 + 0.32 * fbm(p, 0.008, 3, seed=81))[:, None]
+    strokes = value_noise(p, (0.02, 0.003, 0.003), seed=82)
+    colour *= (0.93 + 0.14 * strokes)[:, None]
+    beak = _cover(_box(0.050 - x, 0.012 - z))
+    _paint(colour, beak, np.array([226.0, 110.0, 30.0]) * (0.9 + 0.2 * fbm(p, 0.004, 2, seed=83))[:, None])
+    for side in (1.0, -1.0):
+        eye = np.array([0.0393, 0.0162 * side, 0.0375])
+        _paint(colour, _cover(np.linalg.norm(p - eye, axis=1) - 0.0045), [24.0, 22.0, 20.0])
+        _paint(colour, _cover(np.linalg.norm(p - eye - [0.0012, 0.0, 0.0013], axis=1) - 0.0012),
+               [240.0, 240.0, 236.0])
+    base = _cover(z - (-0.0465))
+    _paint(colour, base, [120.0, 110.0, 96.0])
+    return colour, np.full(len(p), 0.35)
+
+
+def _scan(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # Any other mesh: plaster-like, mottled (fbm) with fine grey specks: texture everywhere.
+    colour = np.array([214.0, 204.0, 186.0]) * (0.8 + 0.4 * fbm(p, 0.01, 3, seed=91))[:, None]
+    specks = _smoothstep(0.86, 0.93, value_noise(p, 0.0015, seed=92))
+    _paint(colour, 0.6 * specks, [96.0, 92.0, 88.0])
+    return colour, np.full(len(p), 0.1)
+
+
+_OBJECTS = {'cat': _cat, 'bottle': _bottle, 'mug': _mug, 'cup': _cup, 'animal': _animal,
+            'duck': _duck, 'scan': _scan}
+
+
+def surface_appearance(texture: str, points, normals=None) -> tuple[np.ndarray, np.ndarray]:
+    """Colour (N, 3) uint8 RGB and specular weight (N,) in [0, 1] of the surface painted
+    ``texture`` (an object's ``texture``: its name for the built-in objects and the shipped
+    meshes, ``scan`` for other meshes) at object-frame points (N, 3) (see
+    :func:`surface_colour`)."""
     try:
-        paint = _OBJECTS[object_name]
+        paint = _OBJECTS[texture]
     except KeyError:
-        raise ValueError(f'no texture for object {object_name!r}: choose one of '
-                         f'{", ".join(_OBJECTS)}') from None
+        raise ValueError(f'no texture {texture!r}: choose one of {", ".join(_OBJECTS)}') from None
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     if len(p) == 0:
         return np.zeros((0, 3), np.uint8), np.zeros(0)
@@ -441,18 +512,18 @@ def surface_appearance(object_name: str, points, normals=None) -> tuple[np.ndarr
     return _to_uint8(colour), np.clip(gloss, 0.0, 1.0)
 
 
-def surface_colour(object_name: str, points, normals=None) -> np.ndarray:
-    """True colour (N, 3) uint8 RGB of ``object_name``'s surface at points (N, 3) in its
-    OBJECT frame (metres). A pure function of the position: ``normals`` is accepted so that
+def surface_colour(texture: str, points, normals=None) -> np.ndarray:
+    """True colour (N, 3) uint8 RGB of the surface painted ``texture`` at points (N, 3) in
+    its OBJECT frame (metres). A pure function of the position: ``normals`` is accepted so that
     callers with normals can pass them, and is not needed by the current textures. Points
     off the surface get the colour of the pattern there (the patterns are solid textures)."""
-    return surface_appearance(object_name, points, normals)[0]
+    return surface_appearance(texture, points, normals)[0]
 
 
-def surface_gloss(object_name: str, points, normals=None) -> np.ndarray:
+def surface_gloss(texture: str, points, normals=None) -> np.ndarray:
     """Specular weight (N,) in [0, 1] at object-frame points: glass and glaze shine, paper
-    and bare clay do not. The highlight's exponent is ``SHININESS[object_name]``."""
-    return surface_appearance(object_name, points, normals)[1]
+    and bare clay do not. The highlight's exponent is ``SHININESS[texture]``."""
+    return surface_appearance(texture, points, normals)[1]
 
 
 def _to_uint8(colour: np.ndarray) -> np.ndarray:

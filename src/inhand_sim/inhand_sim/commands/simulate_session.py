@@ -1,15 +1,23 @@
 """``simulate_session``: write a simulated exploration session as a bag plus ground truth.
 
-    simulate_session --object cat|bottle|mug --static|--moving [--regrasp/--no-regrasp]
-                     [--second-object-sensor] --rate 15|240 --duration SECONDS --seed N
-                     [--noise-mm 1.0] --output bags/NAME [--force] [--quiet]
+    simulate_session --object NAME|MESH_FILE [--mesh-scale S] [--mesh-up z]
+                     --static|--moving [--regrasp/--no-regrasp] [--second-object-sensor]
+                     --rate 15|30|120|240 --duration SECONDS --seed N [--speed CM_PER_S]
+                     [--lifts continuous|between-frames] [--noise-mm 1.0]
+                     --output bags/NAME [--force] [--quiet]
+
+``--object``: a built-in object (cat, bottle, mug), a mesh this package ships (cup, animal,
+duck) or a mesh file (OBJ, STL, PLY; ``--mesh-scale`` metres per file unit, ``--mesh-up``
+its up axis); see :mod:`inhand_sim.catalogue`. A mesh that cannot be an object (unreadable,
+not watertight, too small or large) is refused with the reason in one line.
 
 Writes the bag folder ``bags/NAME/`` (MCAP: the driver's ``polhemus/<name>/pose`` topics)
 and ``bags/NAME.truth.npz`` beside it (see :mod:`inhand_sim.session` for both formats),
 atomically: into a temporary folder beside them, then renamed into place. An existing bag
 or sidecar is replaced only with ``--force``. The same arguments write the same bytes.
 
-Exit status: 0 written, 1 could not write, 2 bad arguments or output exists.
+Exit status: 0 written, 1 could not write, 2 bad arguments (an object that cannot be one
+included) or output exists.
 """
 
 from __future__ import annotations
@@ -17,14 +25,19 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 
 from inhand_common.cli_types import number
 from inhand_common.ground_truth import truth_path
-from inhand_sim.objects import OBJECT_NAMES
+from inhand_sim.catalogue import object_choices
+from inhand_sim.exploration import ExplorationSettings, speed_range_around
+from inhand_sim.mesh_objects import MESH_SUFFIXES, UP_AXES
 from inhand_sim.session import SessionSettings, simulate, write_session
 
 EXIT_WRITE_FAILED = 1
 EXIT_BAD_ARGUMENTS = 2
+RATES = (15.0, 30.0, 120.0, 240.0)
+LIFTS = ('continuous', 'between-frames')
 
 
 def _rate(text: str) -> float:
@@ -32,10 +45,20 @@ def _rate(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f'{text!r} is not a rate') from None
-    if value not in (15.0, 240.0):
+    if value not in RATES:
         raise argparse.ArgumentTypeError(
-            f'{text} Hz: choose 15 (the paper\'s rate) or 240 (the Liberty\'s)')
+            f'{text} Hz: choose 15 (the paper\'s rate), 30, 120 or 240 (the Liberty\'s two)')
     return value
+
+
+def _object(text: str) -> str:
+    """A name of :func:`object_choices`, or something that looks like a mesh file (whether
+    it is one is for the loader to say)."""
+    if text in object_choices() or text.lower().endswith(MESH_SUFFIXES):
+        return text
+    raise argparse.ArgumentTypeError(
+        f'{text!r}: choose one of {", ".join(object_choices())} or give a mesh file '
+        f'({", ".join(MESH_SUFFIXES)})')
 
 
 def _seed(text: str) -> int:
@@ -61,8 +84,14 @@ def make_parser() -> argparse.ArgumentParser:
         description='Simulate three fingertips exploring an object (contour-following '
                     'strokes, tracker noise, involuntary lifts; static on the table or held '
                     'and re-grasped) and write the driver\'s bag plus exact ground truth.')
-    parser.add_argument('--object', required=True, choices=OBJECT_NAMES,
-                        help='the object explored')
+    parser.add_argument('--object', required=True, type=_object, metavar='NAME|MESH_FILE',
+                        help=f'the object explored: {", ".join(object_choices())}, or a mesh '
+                        f'file ({", ".join(MESH_SUFFIXES)})')
+    parser.add_argument('--mesh-scale', type=number(above=0.0, unit='m per unit'), default=1.0,
+                        metavar='S', help='meshes: metres per unit of the file (0.001 for '
+                        'millimetres; default 1)')
+    parser.add_argument('--mesh-up', choices=UP_AXES, default='z',
+                        help="meshes: the file's axis that points up (default z)")
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument('--static', dest='static', action='store_true',
                       help='object fixed on the table, no object sensor (map with '
@@ -76,8 +105,15 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument('--second-object-sensor', action='store_true',
                         help='moving only: also publish a second sensor rigidly attached to '
                              'the object (station object2)')
-    parser.add_argument('--rate', type=_rate, required=True, metavar='15|240',
+    parser.add_argument('--rate', type=_rate, required=True, metavar='15|30|120|240',
                         help='tracker frame rate in Hz')
+    parser.add_argument('--speed', type=number(at_least=1.0, at_most=30.0, unit='cm/s'),
+                        metavar='CM_PER_S', help='mean sliding speed of the strokes (each stroke '
+                        'within 20%% of it, varying by 30%% within itself; default: 2-5 cm/s)')
+    parser.add_argument('--lifts', choices=LIFTS, default='continuous',
+                        help='continuous (default): lifts, lift-offs and touch-downs pass through '
+                        'every height above the surface; between-frames: they jump past 6 mm '
+                        'between two frames (the sessions made before)')
     parser.add_argument('--duration', type=number(above=0.0, at_most=24 * 3600, unit='seconds'),
                         required=True, metavar='SECONDS')
     parser.add_argument('--seed', type=_seed, required=True, metavar='N')
@@ -158,8 +194,12 @@ def main(argv=None) -> int:
               f'{"exists" if len(existing) == 1 else "exist"}; use --force to replace',
               file=sys.stderr)
         return EXIT_BAD_ARGUMENTS
+    exploration = ExplorationSettings(continuous_lifts=args.lifts == 'continuous')
+    if args.speed is not None:
+        exploration = replace(exploration, speed_range=speed_range_around(args.speed / 100.0))
     settings = SessionSettings(
-        object_name=args.object, static=args.static,
+        object_name=args.object, mesh_scale=args.mesh_scale, mesh_up=args.mesh_up,
+        exploration=exploration, static=args.static,
         regrasp=(args.regrasp is not False) and not args.static,
         second_object_sensor=args.second_object_sensor, rate=args.rate,
         duration=args.duration, seed=args.seed, noise_mm=args.noise_mm, stereo=args.stereo,
@@ -167,7 +207,11 @@ def main(argv=None) -> int:
         camera_elevation_deg=args.camera_elevation, stereo_shots=args.stereo_shots)
     progress = _Progress(args.quiet)
     started = time.monotonic()
-    session = simulate(settings, progress=lambda stage: progress.stage_done(stage))
+    try:
+        session = simulate(settings, progress=lambda stage: progress.stage_done(stage))
+    except ValueError as error:    # the object: unknown, or a mesh that cannot be one
+        print(f'simulate_session: {error}', file=sys.stderr)
+        return EXIT_BAD_ARGUMENTS
     try:
         bag, truth = write_session(session, output, force=args.force, progress=progress.fraction)
     except OSError as error:
@@ -177,8 +221,10 @@ def main(argv=None) -> int:
     tr = session.truth
     kind = 'static' if settings.static else (
         f'moving, {len(session.regrasp_windows)} re-grasp(s)' if settings.regrasp else 'moving, no re-grasp')
+    low, high = (100 * v for v in exploration.speed_range)
     print(f'simulate_session: {settings.object_name} ({kind}), {settings.duration:g} s at '
-          f'{settings.rate:g} Hz, seed {settings.seed}, noise {settings.noise_mm:g} mm')
+          f'{settings.rate:g} Hz, seed {settings.seed}, noise {settings.noise_mm:g} mm, '
+          f'strokes {low:.3g}-{high:.3g} cm/s, {args.lifts} lifts')
     print(f'  wrote {bag}/ : {session.message_count:,} messages '
           f'({len(session.stamps_ns):,} frames x {len(session.stations)} stations: '
           f'{", ".join(session.stations)}'
