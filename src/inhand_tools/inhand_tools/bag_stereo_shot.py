@@ -69,19 +69,22 @@ class BagShot:
         return self.placed.points_in_map(self.config.camera_pose), self.placed.shot.colours
 
     @property
-    def texture_stamp(self) -> float:
-        """Seconds: the stamp of the pair :meth:`texture` colours with (the last usable)."""
+    def latest(self) -> PlacedShot:
+        """The bag's last usable pair: the one the stereo node colours the map with (the
+        same as ``placed`` in a bag with one pair)."""
         latest = self.pairs.last
         assert latest is not None   # a BagShot is made only for a bag with a usable pair
-        return latest.shot.stamp_ns * 1e-9
+        return latest
+
+    @property
+    def texture_stamp(self) -> float:
+        """Seconds: the stamp of the pair :meth:`texture` colours with."""
+        return self.latest.shot.stamp_ns * 1e-9
 
     def texture(self, centres: np.ndarray) -> CellTexture:
-        """Colours of occupied cells (map-frame centres), as ``occupancy/textured``: from the
-        bag's last usable pair, as the stereo node colours with the latest pair it placed
-        (the same as the first in a bag with one pair)."""
-        latest = self.pairs.last
-        assert latest is not None   # a BagShot is made only for a bag with a usable pair
-        return latest.texture(centres, self.config.resolution, self.config.camera_pose)
+        """Colours of occupied cells (map-frame centres), as ``occupancy/textured``: from
+        :attr:`latest`, as the stereo node colours with the latest pair it placed."""
+        return self.latest.texture(centres, self.config.resolution, self.config.camera_pose)
 
     def vision_log_odds(self) -> np.ndarray:
         """The vision local map of every usable pair of the bag (each integrated once), as
