@@ -110,7 +110,7 @@ class GridColours:
 
 def _cell_indices(spec: GridSpec, centres: ArrayLike) -> NDArray[np.intp]:
     ijk = spec.cell_indices(centres)
-    if np.any((ijk < 0) | (ijk >= spec.cells_per_axis)):
+    if not spec.holds(ijk).all():
         raise ValueError('cell centres outside the grid')
     return ijk
 

@@ -117,12 +117,15 @@ class GridSpec:
         grid's bounds (:meth:`contains` says which are inside)."""
         return self._cell_coordinates(points).astype(np.intp)
 
-    def contains(self, points: ArrayLike) -> Bools:
-        """Which map-frame points (N, 3) fall in a cell of the grid."""
-        ijk = self._cell_coordinates(points)
-        axes = (ijk >= 0) & (ijk < self.cells_per_axis)
+    def holds(self, ijk: ArrayLike) -> Bools:
+        """Which cell indices (N, 3; integers, or floats as floored) lie in the grid."""
+        axes = (np.asarray(ijk) >= 0) & (np.asarray(ijk) < self.cells_per_axis)
         inside: Bools = axes[:, 0] & axes[:, 1] & axes[:, 2]    # faster than all(axis=1)
         return inside
+
+    def contains(self, points: ArrayLike) -> Bools:
+        """Which map-frame points (N, 3) fall in a cell of the grid."""
+        return self.holds(self._cell_coordinates(points))
 
 
 @dataclass(frozen=True)

@@ -117,8 +117,7 @@ def segment_object(points: Points, spec: GridSpec,
     # a row with a NaN or an infinity has a non-finite sum (column by column: fast)
     index = np.flatnonzero(np.isfinite(points[:, 0] + points[:, 1] + points[:, 2]))
     ijk = spec.cell_indices(points[index])
-    axes = (ijk >= 0) & (ijk < spec.cells_per_axis)
-    inside = axes[:, 0] & axes[:, 1] & axes[:, 2]
+    inside = spec.holds(ijk)
     # from here on: the points in the grid (their rows in ``index``) and their cells
     index, ijk = index[inside], ijk[inside]
     candidates = points[index]
