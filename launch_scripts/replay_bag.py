@@ -27,6 +27,8 @@ from inhand_tools.launching import ProcessGroup, TopicWatch, call_trigger, mappi
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 QUIET = 1.0  # s without registered points after the replay: the graph has caught up
+TEXTURE_WAIT = 120.0  # s the save waits for the stereo node's first textured map
+QUIET_TEXTURE = 2.0  # s without a new textured map: the last one is of the final map
 
 
 STEREO_IMAGE_TOPIC = 'stereo/left/image_raw'
@@ -57,7 +59,8 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
     print(f'[launch] mapping graph with {config}; replaying {bag}', flush=True)
     started = time.monotonic()
     from sensor_msgs.msg import PointCloud2
-    with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch:
+    with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch, \
+            TopicWatch('occupancy/textured', PointCloud2) as textured:
         mapping_graph(group, str(config), str(output), name,
                       stereo_config=str(stereo) if stereo else None)
         # The registration node's first points must find the occupancy node listening.
@@ -70,6 +73,14 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             if code != 1:  # 1: truncated bag, replayed what could be read
                 return code
         watch.wait_quiet(QUIET)
+        if stereo:
+            # The colours come from the stereo node once it has the map (its first pair can
+            # take a while: the numba kernels compile on a first run): the save waits for
+            # them, and for the texture of the final map.
+            if not textured.wait_first(TEXTURE_WAIT):
+                print(f'[launch] no occupancy/textured from the stereo node within '
+                      f'{TEXTURE_WAIT:g} s: the map is saved without colours', flush=True)
+            textured.wait_quiet(QUIET_TEXTURE)
         ok, message = call_trigger('occupancy/save')
         print(f'[launch] occupancy/save: {message}', flush=True)
         if not ok:

@@ -24,11 +24,35 @@ def sphere_surface_points(count: int, radius: float, seed: int = 0) -> np.ndarra
     return radius * v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def touched_spot(frame: int, finger: int, spots: int, rate: float = 240.0,
-                 dwell: float = 0.2) -> int:
-    """Which spot ``finger`` touches in tracker frame ``frame`` of a sphere session."""
-    per_spot = max(1, int(round(dwell * rate)))
-    return ((frame // per_spot) * 7 + finger * 53) % spots
+def spot_tour(spots: np.ndarray) -> np.ndarray:
+    """The spots in the order a finger slides through them: a nearest-neighbour tour from
+    the first, so each leg is a short arc (1-3 cm for 40 spots on a 4 cm sphere)."""
+    order = [0]
+    left = set(range(1, len(spots)))
+    while left:
+        here = spots[order[-1]]
+        nearest = min(left, key=lambda i: float(np.sum((spots[i] - here) ** 2)))
+        order.append(nearest)
+        left.remove(nearest)
+    return spots[np.asarray(order)]
+
+
+def fingertip_on_sphere(frame: int, finger: int, tour: np.ndarray, rate: float = 240.0,
+                        leg: float = 0.6) -> np.ndarray:
+    """Where ``finger`` is in tracker frame ``frame``: sliding along the sphere from one
+    spot of ``tour`` to the next, ``leg`` seconds per arc (1.5-5 cm/s). The fingers start a
+    third of the tour apart, so their paths overlap as the session goes on."""
+    per_leg = max(1, int(round(leg * rate)))
+    start = finger * len(tour) // 3
+    k = frame // per_leg + start
+    a, b = tour[k % len(tour)], tour[(k + 1) % len(tour)]
+    s = (frame % per_leg) / per_leg
+    radius = np.linalg.norm(a)
+    cos = np.clip(np.dot(a, b) / (radius * np.linalg.norm(b)), -1.0, 1.0)
+    angle = np.arccos(cos)
+    if angle < 1e-9:
+        return a.copy()
+    return (np.sin((1 - s) * angle) * a + np.sin(s * angle) * b) / np.sin(angle)
 
 
 def object_motion(t: float, moving: bool):
@@ -43,25 +67,24 @@ def object_motion(t: float, moving: bool):
 def sphere_session(seconds: float = 4.0, rate: float = 240.0, radius: float = 0.04,
                    centre_in_object=(0.0, 0.01, -0.02), surface_points: int = 150,
                    moving: bool = True, start: float = 1000.0, seed: int = 0,
-                   dwell: float = 0.2):
-    """Frames of fingertips visiting ``surface_points`` spots of a sphere fixed to the object.
-
-    Each fingertip rests ``dwell`` seconds on a spot, then jumps to another; the fingers
-    take the spots in different orders, so spots are touched by several fingers and again
-    later (the map needs independent touches: see occupancy.py). Returns (frames, sphere
-    centre in the object frame).
+                   leg: float = 0.6):
+    """Frames of fingertips sliding over a sphere fixed to the object, from spot to spot
+    of ``surface_points`` spots (``fingertip_on_sphere``); the fingers' paths overlap, so
+    cells are touched by several fingers (the map needs independent touches or slow
+    passes: see touch_paths.py). Returns (frames, sphere centre in the object frame).
     """
-    spots = sphere_surface_points(surface_points, radius, seed) + np.asarray(centre_in_object)
+    centre = np.asarray(centre_in_object, dtype=float)
+    tour = spot_tour(sphere_surface_points(surface_points, radius, seed))
     frames = []
     for k in range(int(seconds * rate)):
         t = start + k / rate
         obj_p, obj_q = object_motion(t - start, moving)
         frame = {'object': (obj_p, obj_q)}
         for f, name in enumerate(FINGERS):
-            local = spots[touched_spot(k, f, len(spots), rate, dwell)]
+            local = centre + fingertip_on_sphere(k, f, tour, rate, leg)
             frame[name] = (obj_p + rotate_vectors(obj_q, local), np.array([0.0, 0.0, 0.0, 1.0]))
         frames.append((t, frame))
-    return frames, np.asarray(centre_in_object, dtype=float)
+    return frames, centre
 
 
 def stamp_parts(t: float) -> tuple[int, int]:

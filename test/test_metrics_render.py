@@ -36,7 +36,13 @@ from inhand_tools.map_quality import (
     point_metrics,
     touch_coverage,
 )
-from pose_sessions import sphere_session, sphere_surface_points, touched_spot, write_pose_bag
+from pose_sessions import (
+    fingertip_on_sphere,
+    sphere_session,
+    sphere_surface_points,
+    spot_tour,
+    write_pose_bag,
+)
 from ros_helpers import WORKSPACE, executable_path
 
 CONFIG = WORKSPACE / 'config' / 'mapping.yaml'
@@ -368,15 +374,15 @@ def build_map(bag, config, out, name):
     return out / f'{name}.npz'
 
 
-SPOTS = 40   # spots on the sphere of the CLI sessions (a third touched once, the rest more)
+SPOTS = 40   # spots on the sphere of the CLI sessions (the fingers slide from spot to spot)
 
 
 def session_truth(path, frames, centre, seed, static, strays=None):
-    spots = sphere_surface_points(SPOTS, RADIUS, seed) + centre
+    tour = spot_tour(sphere_surface_points(SPOTS, RADIUS, seed))
     contacts, times = [], []
     for k, (t, _) in enumerate(frames):
         for f in range(3):
-            contacts.append(spots[touched_spot(k, f, len(spots))])
+            contacts.append(centre + fingertip_on_sphere(k, f, tour))
             times.append(t)
     poses = [(t, frame['object'][0], frame['object'][1]) for t, frame in frames]
     return make_truth(path, centre, contacts, times, poses, static=static, strays=strays)

@@ -1,4 +1,5 @@
-"""The occupancy mapping core: eq. 3-4 update, object frame, entropy, map files, clouds.
+"""The occupancy mapping core: eq. 3-4 update (the samples model), object frame, entropy,
+map files, clouds.
 
 Expected values are worked out here by hand (math.exp / math.log on the paper's formulas)
 or by a plain-Python per-point, per-neighbour loop, never by calling the code under test.
@@ -36,14 +37,20 @@ from inhand_mapping.dwell import DwellWeights, WeightedSamples
 from inhand_mapping.entropy import cell_entropy, entropy_weights, eq10_entropy, map_entropy
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.object_frame import object_frame
-from inhand_mapping.occupancy import (
-    GridSpec,
-    IntegrationCounts,
-    OccupancyGrid,
-    SensorModel,
-    logit,
-    probability,
-)
+from inhand_mapping.occupancy import GridSpec, IntegrationCounts, logit, probability
+from inhand_mapping.occupancy import OccupancyGrid as _OccupancyGrid
+from inhand_mapping.occupancy import SensorModel as _SensorModel
+
+
+def SensorModel(**parameters):
+    """The samples model (this module's subject; the path model is test_touch_paths.py)."""
+    return _SensorModel(**{'touch_model': 'samples', **parameters})
+
+
+def OccupancyGrid(spec=None, model=None):
+    """A grid of the samples model unless told otherwise."""
+    return _OccupancyGrid(spec or GridSpec(), model if model is not None else SensorModel())
+
 
 RES = 0.005      # default cell size (m)
 SIGMA = 0.002    # default sensor sigma (m)

@@ -64,6 +64,8 @@ FORMAT_VERSION = 2
 SENSOR_MODEL_FIELDS = tuple(f.name for f in fields(SensorModel))
 # Version 1 maps were built with every sample a full measurement and eq. 3 at cell centres.
 VERSION_1_MODEL = {'distance_to': 'centre', 'evidence_rate': 0.0, 'visit_gap': 0.0}
+# Maps saved before the path model had samples as their only touch model.
+BEFORE_PATH_MODEL = {'touch_model': 'samples'}
 Colours: TypeAlias = NDArray[np.uint8]     # (M, 3) RGB per cell
 LOCAL_MAPS = ('touch', 'vision')            # the local maps an NPZ may keep beside the global
 
@@ -183,7 +185,9 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
         raise ValueError(f'{path}: map format {metadata.get("format_version")}, '
                          f'this software reads {FORMAT_VERSION}')
     spec = GridSpec(metadata['size'], metadata['resolution'], tuple(metadata['centre']))
-    model = SensorModel(**{name: metadata[name] for name in SENSOR_MODEL_FIELDS})
+    # The path model's parameters, absent from earlier maps, take their defaults.
+    known = {**BEFORE_PATH_MODEL, **metadata}
+    model = SensorModel(**{name: known[name] for name in SENSOR_MODEL_FIELDS if name in known})
     grid = OccupancyGrid(spec, model)
     if arrays['log_odds'].shape != spec.shape:
         raise ValueError(f'{path}: grid shape {arrays["log_odds"].shape} does not match '

@@ -18,7 +18,7 @@ import yaml
 from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
 from inhand_common.ros_names import DEFAULT_OBJECT_STATION, station_pose_topic
 from inhand_mapping.fusion import FUSIONS, POOLINGS
-from inhand_mapping.occupancy import DISTANCES, GridSpec, OccupancyGrid, SensorModel
+from inhand_mapping.occupancy import DISTANCES, TOUCH_MODELS, GridSpec, OccupancyGrid, SensorModel
 from inhand_mapping.registration import Registrar
 
 __all__ = ['OCCUPANCY_PARAMETERS', 'REGISTRATION_PARAMETERS', 'OccupancyConfig',
@@ -57,17 +57,30 @@ OCCUPANCY_PARAMETERS = (
               minimum=0.001, maximum=0.99),
     ParamSpec('clamp_max', 0.97, 'Highest occupancy a cell can reach (log-odds clamping)',
               minimum=0.01, maximum=0.999),
-    ParamSpec('neighbourhood', 1, '1: update the containing cell (the paper); 27: also its '
-              '26 neighbours, each with eq. 3 at its own distance', choices=(1, 27)),
-    ParamSpec('distance_to', 'cell', "Distance in eq. 3: 'cell' (to the nearest point of "
-              "the cell, 0 inside it) or 'centre' (to the cell centre, the paper literally)",
-              choices=DISTANCES),
-    ParamSpec('evidence_rate', 15.0, 'Hz: one measurement of evidence per 1/evidence_rate '
-              's a fingertip spends in a cell (a sample weighs its dwell time); 0: every '
-              'sample is one measurement', minimum=0.0, maximum=1000.0),
-    ParamSpec('visit_gap', 3.0, 'Seconds: samples of one finger in one cell less than this '
-              'apart are one visit, worth at most one measurement; 0: every sample',
-              minimum=0.0, maximum=600.0),
+    ParamSpec('neighbourhood', 1, 'samples model: 1 updates the containing cell (the paper); '
+              '27 also its 26 neighbours, each with eq. 3 at its own distance',
+              choices=(1, 27)),
+    ParamSpec('distance_to', 'cell', "samples model: the distance in eq. 3, 'cell' (to the "
+              "nearest point of the cell, 0 inside it) or 'centre' (to the cell centre, the "
+              'paper literally)', choices=DISTANCES),
+    ParamSpec('touch_model', 'path', "Evidence from touch: 'path' (the fingertip's path "
+              "through the cells, per visit: touch_paths.py) or 'samples' (eq. 4 per sample, "
+              'weighed by dwell and visits)', choices=TOUCH_MODELS),
+    ParamSpec('evidence_rate', 15.0, "samples model: Hz, one measurement of evidence per "
+              '1/evidence_rate s a fingertip spends in a cell (a sample weighs its dwell '
+              'time); 0: every sample is one measurement', minimum=0.0, maximum=1000.0),
+    ParamSpec('visit_gap', 3.0, 'Seconds: one finger back in a cell less than this after it '
+              'was last there continues its visit (samples model: a visit is worth at most '
+              'one measurement; 0: every sample)', minimum=0.0, maximum=600.0),
+    ParamSpec('transit_speed', 0.2, "path model: m/s; a fingertip faster than this is taken "
+              'to move through the air, its evidence scaled by (transit_speed / speed)^2',
+              minimum=0.01, maximum=10.0),
+    ParamSpec('speed_context', 0.25, 'path model: s; a moment is judged by the fastest speed '
+              'within +- this, so the slow ends of a transit count as the transit',
+              minimum=0.0, maximum=5.0),
+    ParamSpec('pass_time', 0.15, 'path model: s; a slide that takes this long to cross a cell '
+              '(3.3 cm/s at 5 mm cells) or longer is worth a second measurement',
+              minimum=0.001, maximum=10.0),
     ParamSpec('occupied_threshold', 0.8, 'Cells above this probability are occupied '
               '(occupancy/occupied, centre of mass, PLY)', minimum=0.5, maximum=0.999),
     ParamSpec('publish_rate', 2.0, 'Map publications per second (only when it changed)',
@@ -162,6 +175,9 @@ class OccupancyConfig:
         if not values['clamp_min'] < values['prior'] < values['clamp_max']:
             problems.append("parameters 'clamp_min' < 'prior' < 'clamp_max' must hold (got "
                             f"{values['clamp_min']}, {values['prior']}, {values['clamp_max']})")
+        if values['touch_model'] == 'path' and values['neighbourhood'] != 1:
+            problems.append("parameter 'neighbourhood' = 27 is for 'touch_model' samples: the "
+                            'path model updates the cells the path crosses (use 1)')
         if problems:
             raise ParameterError(problems)
         grid = GridSpec(values['workspace_size'], values['resolution'],
@@ -169,7 +185,9 @@ class OccupancyConfig:
         model = SensorModel(values['sensor_sigma'], values['p_z_given_not_occupied'],
                             values['prior'], values['clamp_min'], values['clamp_max'],
                             values['neighbourhood'], values['distance_to'],
-                            values['evidence_rate'], values['visit_gap'])
+                            values['evidence_rate'], values['visit_gap'],
+                            values['touch_model'], values['transit_speed'],
+                            values['speed_context'], values['pass_time'])
         return cls(grid=grid, model=model,
                    occupied_threshold=float(values['occupied_threshold']),
                    publish_rate=float(values['publish_rate']),

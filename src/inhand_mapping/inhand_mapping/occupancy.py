@@ -20,7 +20,15 @@ clamped after every update as in OctoMap. One full measurement inside a cell giv
 p = 1 / (1 + c) = 0.69 (under the paper's 0.7: a stray point stays out of the map); two
 independent ones give 0.83 (over 0.8).
 
-``w`` in [0, 1] says how much of an independent measurement the sample is:
+How much a fingertip's touch counts is the *touch model* (``SensorModel.touch_model``):
+
+* ``'path'`` (the default, touch_paths.py): the fingertip's path through the cells,
+  per visit; each cell's log-odds are ``clamp(l0 + touches * log(1 / c))``, eq. 4 with the
+  touches at distance 0;
+* ``'samples'``: eq. 4 per sample, as below.
+
+In the samples model, ``w`` in [0, 1] says how much of an independent measurement the
+sample is:
 
 * **dwell** (dwell.py): a sample counts for the time the fingertip spent where it was
   sampled, in units of ``1 / evidence_rate`` (15 Hz: the paper's rate), so the same motion
@@ -54,11 +62,13 @@ from numpy.typing import ArrayLike, NDArray
 from inhand_common.array_types import Bools, CellFloats, CellHits, FingerIds, Floats, Points, Times
 from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.dwell import DwellWeights, WeightedSamples
+from inhand_mapping.touch_paths import TouchPaths
 
-__all__ = ['DISTANCES', 'GridSpec', 'IntegrationCounts', 'OccupancyGrid', 'SensorModel',
+__all__ = ['DISTANCES', 'TOUCH_MODELS', 'GridSpec', 'IntegrationCounts', 'OccupancyGrid', 'SensorModel',
            'logit', 'probability']
 
 DISTANCES = ('cell', 'centre')
+TOUCH_MODELS = ('path', 'samples')
 
 
 def logit(p: ArrayLike) -> Floats:
@@ -141,6 +151,10 @@ class SensorModel:
     distance_to: str = 'cell'  # eq. 3's distance: to the cell, or to its 'centre' (paper)
     evidence_rate: float = 15.0  # Hz: samples per second worth one measurement each; 0: every sample
     visit_gap: float = 3.0  # s: one finger's samples in one cell this close are one visit
+    touch_model: str = 'path'  # 'path': touch_paths.py; 'samples': eq. 4 per sample
+    transit_speed: float = 0.2  # m/s, path model: faster is through the air, not sliding
+    speed_context: float = 0.25  # s, path model: the fastest speed within +- this counts
+    pass_time: float = 0.15  # s, path model: a slow pass through a cell this long is 2 touches
 
     def __post_init__(self) -> None:
         if self.neighbourhood not in (1, 27):
@@ -149,6 +163,13 @@ class SensorModel:
             raise ValueError(f'distance_to must be one of {DISTANCES}, not {self.distance_to!r}')
         if not (self.evidence_rate >= 0 and self.visit_gap >= 0):
             raise ValueError('need evidence_rate >= 0 and visit_gap >= 0')
+        if self.touch_model not in TOUCH_MODELS:
+            raise ValueError(f'touch_model must be one of {TOUCH_MODELS}, not {self.touch_model!r}')
+        if self.touch_model == 'path' and self.neighbourhood != 1:
+            raise ValueError("neighbourhood 27 is for touch_model 'samples': the path model "
+                             'updates the cells the path crosses')
+        if not (self.transit_speed > 0 and self.speed_context >= 0 and self.pass_time > 0):
+            raise ValueError('need transit_speed > 0, speed_context >= 0 and pass_time > 0')
         if not 0.0 < self.clamp_min < self.prior < self.clamp_max < 1.0:
             raise ValueError('need 0 < clamp_min < prior < clamp_max < 1')
         if not 0.0 < self.p_z_given_not_occupied < 1.0 or self.sigma <= 0:
@@ -185,8 +206,9 @@ class OccupancyGrid:
         self._probability: CellFloats = np.full(spec.shape, float(model.prior), dtype=np.float64)
         self.earliest_touch = math.inf  # min of first_touch, kept up to date
         self.counts = IntegrationCounts()
+        path_model = model.touch_model == 'path'
         self._dwell = (DwellWeights(1.0 / model.evidence_rate, spec.resolution)
-                       if model.evidence_rate > 0 else None)
+                       if model.evidence_rate > 0 and not path_model else None)
         size = spec.cells_per_axis ** 3
         # What the kernels are given on every call, made once: the geometry, the model in
         # the kernel's units, and flat views of the cell arrays.
@@ -208,6 +230,11 @@ class OccupancyGrid:
         self._visit_last: Floats = np.empty((0, size))
         self._visit_weight: Floats = np.empty((0, size))
         self._visits = kernels.Visits(self._visit_last.reshape(-1), self._visit_weight.reshape(-1))
+        self._paths = TouchPaths(
+            self.geometry, self.cell_arrays, p_z_given_not_occupied=model.p_z_given_not_occupied,
+            prior=model.prior, clamp_min=model.clamp_min, clamp_max=model.clamp_max,
+            transit_speed=model.transit_speed, speed_context=model.speed_context,
+            pass_time=model.pass_time, visit_gap=model.visit_gap) if path_model else None
 
     # ------------------------------------------------------------------ update
     def integrate(self, points: ArrayLike, times: ArrayLike | None = None,
@@ -232,6 +259,8 @@ class OccupancyGrid:
             if stamps.shape[0] != count:
                 raise ValueError(f'{count} points but {stamps.shape[0]} times')
         finger_ids = self._finger_ids(fingers, count)
+        if self._paths is not None:
+            return self._integrate_path(positions, stamps, finger_ids)
         if stamps is None:
             # No times, no dwell: applied at once, after what is held back (order kept).
             held = self.flush()
@@ -242,8 +271,12 @@ class OccupancyGrid:
         return self._apply(self._dwell.push(positions, stamps, finger_ids))
 
     def flush(self) -> IntegrationCounts:
-        """Apply the samples held back for their dwell weights (the end of a stream: a bag
-        replayed, a map about to be saved). Returns their counts."""
+        """Apply the samples held back for their dwell weights, or walk the paths to their
+        ends (the end of a stream: a bag replayed, a map about to be saved). Returns the
+        counts of the samples applied (the path model counted its samples when given)."""
+        if self._paths is not None:
+            self._touched_at(self._paths.flush())
+            return IntegrationCounts()
         if self._dwell is None:
             return IntegrationCounts()
         return self._apply(self._dwell.flush())
@@ -251,7 +284,29 @@ class OccupancyGrid:
     @property
     def pending(self) -> int:
         """Samples given to ``integrate`` and not applied yet (see there)."""
+        if self._paths is not None:
+            return self._paths.pending
         return 0 if self._dwell is None else self._dwell.pending
+
+    def _integrate_path(self, positions: Points, stamps: Times | None,
+                        finger_ids: FingerIds) -> IntegrationCounts:
+        """The path model (touch_paths.py): samples counted when given, paths walked as
+        their speeds settle. Untimed points are one touch each, after what is pending."""
+        assert self._paths is not None
+        if stamps is None:
+            self.flush()
+            integrated, outside, invalid = self._paths.add_points(positions)
+        else:
+            integrated, outside, invalid, earliest = self._paths.push(positions, stamps,
+                                                                      finger_ids)
+            self._touched_at(earliest)
+        taken = IntegrationCounts(integrated=int(integrated), outside=int(outside),
+                                  invalid=int(invalid))
+        self.counts = self.counts + taken
+        return taken
+
+    def _touched_at(self, earliest: float) -> None:
+        self.earliest_touch = min(self.earliest_touch, float(earliest))
 
     def _apply(self, samples: WeightedSamples, has_times: bool = True) -> IntegrationCounts:
         count = samples.points.shape[0]   # not samples.count: without times, times is empty
@@ -307,6 +362,8 @@ class OccupancyGrid:
         self._visit_weight.fill(0.0)
         if self._dwell is not None:
             self._dwell.reset()   # the samples held back go too
+        if self._paths is not None:
+            self._paths.reset()
 
     # ------------------------------------------------------------------ queries
     def probabilities(self) -> CellFloats:
@@ -330,6 +387,8 @@ class OccupancyGrid:
     def refresh(self) -> None:
         """Recompute what is derived from the arrays after they were set directly (loading)."""
         self._probability[...] = probability(self.log_odds)
+        if self._paths is not None:
+            self._paths.follow(self.log_odds)
         finite = self.first_touch[np.isfinite(self.first_touch)]
         self.earliest_touch = float(finite.min()) if finite.size else math.inf
 

@@ -206,6 +206,13 @@ class TopicWatch:
             time.sleep(0.05)
         return False
 
+    def wait_first(self, timeout: float) -> bool:
+        """Until a message has arrived (False if none within ``timeout``)."""
+        deadline = time.monotonic() + timeout
+        while self.count == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return self.count > 0
+
     def wait_quiet(self, quiet: float = 1.0, timeout: float = 300.0) -> None:
         """Until nothing has arrived for ``quiet`` seconds (or ``timeout``)."""
         start = time.monotonic()

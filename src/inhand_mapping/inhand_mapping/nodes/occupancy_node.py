@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 from geometry_msgs.msg import PointStamped
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
@@ -70,7 +71,11 @@ class OccupancyNode(Node):
         self._idle_ticks = 0   # publish periods since points last came
         self._latest_stamp = None
         self._colours: GridColours | None = None   # the latest occupancy/textured, by cell
-        self.create_subscription(PointCloud2, 'registration/points', self._on_points, POINTS_QOS)
+        self._received = 0           # registered points received, and in how many messages
+        self._messages = 0
+        self.create_subscription(
+            PointCloud2, 'registration/points', self._on_points, POINTS_QOS,
+            event_callbacks=SubscriptionEventCallbacks(matched=self._on_points_matched))
         self.create_subscription(PointCloud2, 'occupancy/textured', self._on_textured, MAP_QOS)
         self._touch_cloud = None
         if config.fusion != 'none':
@@ -87,10 +92,8 @@ class OccupancyNode(Node):
         self.get_logger().info(
             f'map: {spec.cells_per_axis}^3 cells of {spec.resolution * 1000:g} mm, '
             f'{spec.size:g} m cube centred at {list(spec.centre)} in {MAP_FRAME}; '
-            f'neighbourhood {model.neighbourhood}, distance to {model.distance_to}, '
-            f'P(Z|not O) {model.p_z_given_not_occupied:g}, evidence rate '
-            f'{model.evidence_rate:g} Hz, visit gap {model.visit_gap:g} s; fusion '
-            f'{config.fusion}')
+            f'{model.touch_model} touch model, P(Z|not O) {model.p_z_given_not_occupied:g}, '
+            f'visit gap {model.visit_gap:g} s; fusion {config.fusion}')
 
     def products(self, grid) -> MapProducts:
         """The clouds and object frame of ``grid`` (buffers made once per grid)."""
@@ -100,6 +103,8 @@ class OccupancyNode(Node):
 
     def _on_points(self, msg: PointCloud2) -> None:
         points, times, fingers = unpack_registered(from_point_cloud2(msg))
+        self._received += len(points)
+        self._messages += 1
         self._idle_ticks = 0
         if len(points):
             self.grid.integrate(points, times, fingers)
@@ -204,11 +209,15 @@ class OccupancyNode(Node):
         self._publish()
         return response
 
+    def _on_points_matched(self, status) -> None:
+        self.get_logger().info(f'registration/points: {status.current_count} publisher(s)')
+
     def close(self) -> None:
         counts = self.grid.counts
         self.get_logger().info(
-            f'stopped: {counts.integrated} points integrated, {counts.outside} outside the '
-            f'workspace, {counts.invalid} invalid')
+            f'stopped: received {self._received} points in {self._messages} messages; '
+            f'{counts.integrated} points integrated, {counts.outside} outside the workspace, '
+            f'{counts.invalid} invalid, {self.grid.pending} not yet applied')
 
 
 def main(args=None) -> int:

@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
@@ -53,7 +54,13 @@ class RegistrationNode(Node):
         if self.config.object_topic is not None:
             self.create_subscription(PoseStamped, self.config.object_topic,
                                      self._raw_objects.append, POSE_QOS, raw=True)
-        self._points = self.create_publisher(PointCloud2, 'registration/points', POINTS_QOS)
+        # Points published while no reader is matched reach nobody (the topic is volatile):
+        # the matches are logged and such points counted, so a loss is never silent.
+        self._points = self.create_publisher(
+            PointCloud2, 'registration/points', POINTS_QOS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_points_matched))
+        self._published = 0    # registered points published
+        self._unheard = 0      # of which while registration/points had no subscriber
         self._object_frame = self.create_publisher(PoseStamped, 'registration/object_frame',
                                                    LATCHED_QOS)
         self._frame_sent = False
@@ -97,11 +104,23 @@ class RegistrationNode(Node):
         points, times, fingers = self.registrar.drain(now=time.monotonic())
         if len(points) == 0:
             return
+        self._published += len(points)
+        if self._points.get_subscription_count() == 0:
+            self._unheard += len(points)
+            self.get_logger().warning(
+                f'registration/points has no subscriber: {self._unheard} registered points '
+                'published to nobody so far', throttle_duration_sec=5.0)
         cloud = pack_registered(points, times, fingers)
         stamp = stamp_from_seconds(times[-1])
         self._points.publish(serialize_point_cloud2(cloud, MAP_FRAME, stamp.sec, stamp.nanosec))
 
+    def _on_points_matched(self, status) -> None:
+        self.get_logger().info(f'registration/points: {status.current_count} subscriber(s)')
+
     def close(self) -> None:
+        if self._unheard:
+            self.get_logger().warning(f'{self._unheard} of {self._published} registered points '
+                                      'were published while nothing subscribed')
         stats = self.registrar.stats
         self.get_logger().info(
             f'stopped: {stats.registered} of {stats.received} fingertip positions registered; '

@@ -1,0 +1,518 @@
+"""Compiled loops of the path touch model (numba), used only by touch_paths.py.
+
+Why compiled: the model walks each fingertip's path in steps of a fifth of a cell and keeps,
+per finger, the visits of the last few seconds; every step looks at its visit and updates
+one cell. That is sequential state per finger, which numpy cannot express without a
+Python loop per step. The maths is described in touch_paths.py.
+
+The stream is processed sample by sample, in the order given, and every decision (a
+sample's speed is settled, a track has ended, a visit is new) is taken at a sample of the
+stream, never at the end of a call: the map therefore does not depend on how the stream was
+cut into calls.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from inhand_common.array_types import CellFloats, FingerIds, Floats, Indices, Points, Times
+from inhand_mapping.occupancy_kernels import (
+    CellArrays,
+    GridGeometry,
+    _compiled,
+    _inlined,
+    _refresh_probability,
+)
+
+__all__ = ['PathCounts', 'PathModel', 'PathTracks', 'PathVisits', 'add_points', 'end_tracks',
+           'push_samples']
+
+# Cells whose probability waits for a refresh, at most: beyond it they are refreshed at once.
+CHANGED_BUFFER = 1 << 16
+
+
+class PathModel(NamedTuple):
+    """The path model's parameters, in the kernel's units (see touch_paths.py)."""
+
+    transit_speed: float   # m/s: above it the finger is taken to be in the air
+    speed_context: float   # s: the fastest speed within +- this judges a moment
+    speed_window: float    # s: half-width of the local linear fit giving the velocity
+    track_gap: float       # s: a longer gap between two samples of a finger ends its track
+    pass_time: float       # s: a slide that takes this long to cross a cell earns a second touch
+    pass_gap: float        # s: out of a cell for less than this (noise) does not end a pass
+    return_share: float    # what a visit that leaves where it came in loses of its touch
+    visit_gap: float       # s: one finger back in a cell within this is the same visit
+    stay_radius: float     # m: a finger whose path stays within this of a point is at one place
+    step: float            # m: the path is walked in steps of at most this
+    max_steps: int         # steps of one segment, at most (an absurd jump is walked coarsely)
+    log_odds_per_touch: float  # -log P(Z | not O): eq. 4 for a touch inside the cell
+    prior: float           # prior log-odds
+    l_min: float           # log-odds clamps
+    l_max: float
+
+
+class PathTracks(NamedTuple):
+    """Each finger's current track (rows): the samples still needed, oldest first."""
+
+    t: Floats          # (F, B) s
+    p: Floats          # (F, B, 3) m
+    speed: Floats      # (F, B) |velocity| of the local fit, m/s, once settled
+    smooth: Floats     # (F, B, 3) the local fit's position at the sample, once settled
+    context: Floats    # (F, B) fastest speed within +- speed_context, once settled
+    held: Indices      # (F,) samples in the buffer; 0: no open track
+    known: Indices     # (F,) leading samples whose speed is settled
+    walked: Indices    # (F,) leading samples whose context is settled and path walked to
+    newest: Floats     # (F,) time of the finger's newest sample; -inf: none yet
+
+
+class PathVisits(NamedTuple):
+    """Each finger's recent visits (rows): a ring in the order they were entered. A visit
+    entered again moves to the front, so the ring is also in order of the last time spent
+    in each: a backwards scan stops at the first one older than the visit gap and made
+    before the finger's current stay (the visits of the stay are the newest)."""
+
+    cell: Indices      # (F, R) flat cell index; -1: a slot moved to the front, or empty
+    last: Floats       # (F, R) last time the finger was in the cell (s)
+    through: Floats    # (F, R) how far through the cell the visit's finished passes went, at most (cells)
+    pass_entry: Floats  # (F, R, 3) where the current pass entered the cell (smoothed path)
+    pass_through: Floats  # (F, R) how far through the cell the current pass is, entry to now
+    dwell: Floats      # (F, R) time spent in the cell (s)
+    g_dwell: Floats    # (F, R) sum of the slide factor times the time
+    v_dwell: Floats    # (F, R) sum of the fitted speed times the time (m)
+    worth: Floats      # (F, R) measurements the visit has given so far
+    stay: Indices      # (F, R) the finger's stay (place) when it was last in the cell
+    anchor: Floats     # (F, 3) where the finger's current stay began; NaN: none yet
+    stay_id: Indices   # (F,) the current stay's number
+    head: Indices      # (F,) slots ever written (the next one is head % R)
+    current: Indices   # (F,) slot of the visit the finger is in now; -1: none
+
+
+class PathCounts(NamedTuple):
+    """Scalars the kernels keep between calls, as one-element arrays."""
+
+    clock: Floats      # (1,) newest time of any finger
+    overwritten: Indices  # (1,) visits within the gap dropped because a ring was full
+
+
+@_inlined
+def _clamp(value: float, low: float, high: float) -> float:
+    return min(max(value, low), high)
+
+
+@_compiled
+def push_samples(points: Points, times: Times, fingers: FingerIds, geometry: GridGeometry,
+                 model: PathModel, cells: CellArrays, evidence: CellFloats, tracks: PathTracks,
+                 visits: PathVisits, counts: PathCounts, changed: Indices
+                 ) -> tuple[int, int, int, float]:
+    """Take timed samples in stream order: count each in its cell (hits, first touch), and
+    walk every path segment whose ends' speeds became settled. Returns (integrated,
+    outside, invalid, earliest step or sample time)."""
+    inv_res, n, origin = geometry.inv_res, geometry.n, geometry.origin
+    integrated = 0
+    outside = 0
+    invalid = 0
+    earliest = np.inf
+    n_changed = 0
+    n_fingers = tracks.held.shape[0]
+    for i in range(points.shape[0]):
+        t = times[i]
+        f = fingers[i]
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)
+                and math.isfinite(t)):
+            invalid += 1
+            continue
+        # The end of tracks: a gap, time going back (a new stream: its visits are new too),
+        # or another finger's time far past this finger's newest sample.
+        if tracks.held[f] > 0 and (t > tracks.newest[f] + model.track_gap
+                                    or t < tracks.newest[f]):
+            earliest, n_changed = _end_track(f, geometry, model, cells, evidence, tracks,
+                                             visits, counts, changed, earliest, n_changed)
+        if t < tracks.newest[f]:
+            _forget_visits(f, visits)
+        for g in range(n_fingers):
+            if g != f and tracks.held[g] > 0 and t > tracks.newest[g] + model.track_gap:
+                earliest, n_changed = _end_track(g, geometry, model, cells, evidence,
+                                                 tracks, visits, counts, changed, earliest,
+                                                 n_changed)
+        counts.clock[0] = max(counts.clock[0], t)
+        x = (px - origin[0]) * inv_res
+        y = (py - origin[1]) * inv_res
+        z = (pz - origin[2]) * inv_res
+        if x < 0.0 or y < 0.0 or z < 0.0 or x >= n or y >= n or z >= n:
+            outside += 1     # still part of the path: it may come back into the grid
+        else:
+            c = (int(x) * n + int(y)) * n + int(z)
+            cells.hits[c] += 1
+            if not (cells.first_touch[c] <= t):
+                cells.first_touch[c] = t
+            earliest = min(earliest, t)
+            integrated += 1
+        if tracks.held[f] == tracks.t.shape[1] and not _compact(f, model, tracks):
+            # Faster than the buffer holds (kHz): the track ends here rather than lose a sample.
+            earliest, n_changed = _end_track(f, geometry, model, cells, evidence, tracks,
+                                             visits, counts, changed, earliest, n_changed)
+        k = tracks.held[f]
+        tracks.t[f, k] = t
+        tracks.p[f, k, 0] = px
+        tracks.p[f, k, 1] = py
+        tracks.p[f, k, 2] = pz
+        tracks.held[f] = k + 1
+        tracks.newest[f] = t
+        earliest, n_changed = _advance(f, False, geometry, model, cells, evidence, tracks,
+                                       visits, counts, changed, earliest, n_changed)
+    _refresh_probability(cells, n, 0, changed, n_changed)
+    return integrated, outside, invalid, earliest
+
+
+@_compiled
+def end_tracks(geometry: GridGeometry, model: PathModel, cells: CellArrays,
+               evidence: CellFloats, tracks: PathTracks, visits: PathVisits,
+               counts: PathCounts, changed: Indices) -> float:
+    """The end of the stream: every open track is walked to its last sample. Returns the
+    earliest step time."""
+    earliest = np.inf
+    n_changed = 0
+    for f in range(tracks.held.shape[0]):
+        if tracks.held[f] > 0:
+            earliest, n_changed = _end_track(f, geometry, model, cells, evidence, tracks,
+                                             visits, counts, changed, earliest, n_changed)
+    _refresh_probability(cells, geometry.n, 0, changed, n_changed)
+    return earliest
+
+
+@_compiled
+def add_points(points: Points, geometry: GridGeometry, model: PathModel, cells: CellArrays,
+               evidence: CellFloats, changed: Indices) -> tuple[int, int, int]:
+    """Untimed points: each is one touch of its cell (no path, no visits). Returns
+    (integrated, outside, invalid)."""
+    inv_res, n, origin = geometry.inv_res, geometry.n, geometry.origin
+    integrated = 0
+    outside = 0
+    invalid = 0
+    n_changed = 0
+    for i in range(points.shape[0]):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+            invalid += 1
+            continue
+        x = (px - origin[0]) * inv_res
+        y = (py - origin[1]) * inv_res
+        z = (pz - origin[2]) * inv_res
+        if x < 0.0 or y < 0.0 or z < 0.0 or x >= n or y >= n or z >= n:
+            outside += 1
+            continue
+        c = (int(x) * n + int(y)) * n + int(z)
+        cells.hits[c] += 1
+        integrated += 1
+        n_changed = _add_evidence(c, 1.0, model, cells, evidence, changed, n_changed, n)
+    _refresh_probability(cells, n, 0, changed, n_changed)
+    return integrated, outside, invalid
+
+
+# ---------------------------------------------------------------------------- tracks
+@_compiled
+def _advance(f: int, final: bool, geometry: GridGeometry, model: PathModel, cells: CellArrays,
+             evidence: CellFloats, tracks: PathTracks, visits: PathVisits, counts: PathCounts,
+             changed: Indices, earliest: float, n_changed: int) -> tuple[float, int]:
+    """Settle what finger ``f``'s samples now allow (everything if ``final``: its track has
+    ended), and walk the path to each sample whose context speed is settled."""
+    count = tracks.held[f]
+    t = tracks.t[f]
+    newest = t[count - 1]
+    window, context = model.speed_window, model.speed_context
+    # A sample's velocity needs the samples within +- window and at least one on each side.
+    k = tracks.known[f]
+    while k < count and (final or (newest > t[k] + window and k + 1 < count)):
+        tracks.speed[f, k] = _fit(t, tracks.p[f], k, count, window, tracks.smooth[f, k])
+        k += 1
+    tracks.known[f] = k
+    # Its context speed needs the speeds within +- context.
+    w = tracks.walked[f]
+    while w < count and (final or newest > t[w] + context + window):
+        fastest = 0.0
+        j = w
+        while j >= 0 and t[j] >= t[w] - context:
+            fastest = max(fastest, tracks.speed[f, j])
+            j -= 1
+        j = w + 1
+        while j < count and t[j] <= t[w] + context:
+            fastest = max(fastest, tracks.speed[f, j])
+            j += 1
+        tracks.context[f, w] = fastest
+        if w > 0:
+            earliest, n_changed = _walk(f, w - 1, w, geometry, model, cells, evidence, tracks,
+                                        visits, counts, changed, earliest, n_changed)
+        w += 1
+    tracks.walked[f] = w
+    return earliest, n_changed
+
+
+@_compiled
+def _fit(t: Floats, p: Floats, k: int, count: int, window: float, smooth: Floats) -> float:
+    """|velocity| at sample k, and its position on the line in ``smooth`` (3,): the
+    least-squares line through the samples within +- window of it, and at least its two
+    neighbours (a single 240 Hz step would turn 1 mm of tracker noise into 0.24 m/s)."""
+    lo = k
+    while lo > 0 and t[lo - 1] >= t[k] - window:
+        lo -= 1
+    lo = max(0, min(lo, k - 1))
+    hi = k
+    while hi + 1 < count and t[hi + 1] <= t[k] + window:
+        hi += 1
+    hi = min(count - 1, max(hi, k + 1))
+    m = hi - lo + 1
+    mean_t = 0.0
+    mean_p = np.zeros(3)
+    for j in range(lo, hi + 1):
+        mean_t += t[j]
+        for a in range(3):
+            mean_p[a] += p[j, a]
+    mean_t /= m
+    for a in range(3):
+        mean_p[a] /= m
+    var = 0.0
+    cov = np.zeros(3)
+    for j in range(lo, hi + 1):
+        dt = t[j] - mean_t
+        var += dt * dt
+        for a in range(3):
+            cov[a] += dt * (p[j, a] - mean_p[a])
+    if not var > 0.0:
+        for a in range(3):
+            smooth[a] = mean_p[a]
+        return 0.0
+    for a in range(3):
+        smooth[a] = mean_p[a] + cov[a] / var * (t[k] - mean_t)
+    return math.sqrt(cov[0] ** 2 + cov[1] ** 2 + cov[2] ** 2) / var
+
+
+@_compiled
+def _compact(f: int, model: PathModel, tracks: PathTracks) -> bool:
+    """Drop the oldest samples of finger ``f``'s full buffer that nothing still needs;
+    False if none can go."""
+    t = tracks.t[f]
+    known, walked = tracks.known[f], tracks.walked[f]
+    keep = min(walked - 1, known - 1)
+    if walked < tracks.held[f]:
+        j = walked
+        while j > 0 and t[j - 1] >= t[walked] - model.speed_context:
+            j -= 1
+        keep = min(keep, j)
+    if known < tracks.held[f]:
+        j = known
+        while j > 0 and t[j - 1] >= t[known] - model.speed_window:
+            j -= 1
+        keep = min(keep, j)
+    if keep <= 0:
+        return False
+    count = tracks.held[f]
+    for j in range(keep, count):
+        tracks.t[f, j - keep] = tracks.t[f, j]
+        tracks.speed[f, j - keep] = tracks.speed[f, j]
+        tracks.context[f, j - keep] = tracks.context[f, j]
+        for a in range(3):
+            tracks.p[f, j - keep, a] = tracks.p[f, j, a]
+            tracks.smooth[f, j - keep, a] = tracks.smooth[f, j, a]
+    tracks.held[f] = count - keep
+    tracks.known[f] = known - keep
+    tracks.walked[f] = walked - keep
+    return True
+
+
+@_compiled
+def _end_track(f: int, geometry: GridGeometry, model: PathModel, cells: CellArrays,
+               evidence: CellFloats, tracks: PathTracks, visits: PathVisits,
+               counts: PathCounts, changed: Indices, earliest: float, n_changed: int
+               ) -> tuple[float, int]:
+    """Walk finger ``f``'s track to its end and close it: the finger is in no cell now."""
+    earliest, n_changed = _advance(f, True, geometry, model, cells, evidence, tracks, visits,
+                                   counts, changed, earliest, n_changed)
+    tracks.held[f] = 0
+    tracks.known[f] = 0
+    tracks.walked[f] = 0
+    visits.current[f] = -1
+    return earliest, n_changed
+
+
+# ---------------------------------------------------------------------------- the walk
+@_compiled
+def _walk(f: int, a: int, b: int, geometry: GridGeometry, model: PathModel, cells: CellArrays,
+          evidence: CellFloats, tracks: PathTracks, visits: PathVisits, counts: PathCounts,
+          changed: Indices, earliest: float, n_changed: int) -> tuple[float, int]:
+    """The straight segment from sample ``a`` to ``b`` of finger ``f``, in equal steps of
+    at most ``model.step``; each step is a moment of contact at its midpoint. The raw path
+    says which cell; the smoothed one (the local fits) how far through it the finger went."""
+    inv_res, n, origin = geometry.inv_res, geometry.n, geometry.origin
+    ta, tb = tracks.t[f, a], tracks.t[f, b]
+    ca, cb = tracks.context[f, a], tracks.context[f, b]
+    va, vb = tracks.speed[f, a], tracks.speed[f, b]
+    d = np.empty(3)
+    ds = np.empty(3)
+    chord2 = 0.0
+    smooth2 = 0.0
+    for axis in range(3):
+        d[axis] = tracks.p[f, b, axis] - tracks.p[f, a, axis]
+        ds[axis] = tracks.smooth[f, b, axis] - tracks.smooth[f, a, axis]
+        chord2 += d[axis] ** 2
+        smooth2 += ds[axis] ** 2
+    steps = max(1, min(model.max_steps, int(math.ceil(math.sqrt(chord2) / model.step))))
+    duration = (tb - ta) / steps
+    length = math.sqrt(smooth2) / steps
+    pos = np.empty(3)
+    smooth = np.empty(3)
+    for s in range(steps):
+        frac = (s + 0.5) / steps
+        for axis in range(3):
+            pos[axis] = tracks.p[f, a, axis] + frac * d[axis]
+            smooth[axis] = tracks.smooth[f, a, axis] + frac * ds[axis]
+        _follow_stay(f, smooth, model, visits)
+        x = (pos[0] - origin[0]) * inv_res
+        y = (pos[1] - origin[1]) * inv_res
+        z = (pos[2] - origin[2]) * inv_res
+        if x < 0.0 or y < 0.0 or z < 0.0 or x >= n or y >= n or z >= n:
+            visits.current[f] = -1
+            continue
+        c = (int(x) * n + int(y)) * n + int(z)
+        time = ta + frac * (tb - ta)
+        if not (cells.first_touch[c] <= time):
+            cells.first_touch[c] = time
+        earliest = min(earliest, time)
+        context = ca + frac * (cb - ca)
+        slide = 1.0 if context <= model.transit_speed else (model.transit_speed / context) ** 2
+        delta = _visit_step(f, c, smooth, length, time, duration, slide,
+                            va + frac * (vb - va), geometry, model, visits, counts)
+        n_changed = _add_evidence(c, delta, model, cells, evidence, changed, n_changed, n)
+    return earliest, n_changed
+
+
+@_inlined
+def _add_evidence(c: int, delta: float, model: PathModel, cells: CellArrays,
+                  evidence: CellFloats, changed: Indices, n_changed: int, n: int) -> int:
+    """Cell ``c``'s touches change by ``delta`` measurements: its log-odds follow (eq. 4 at
+    distance 0, clamped). Returns the new count of cells waiting for a refresh."""
+    evidence[c] += delta
+    cells.log_odds[c] = _clamp(model.prior + evidence[c] * model.log_odds_per_touch,
+                               model.l_min, model.l_max)
+    if not cells.changed_mark[c]:
+        if n_changed == changed.shape[0]:
+            _refresh_probability(cells, n, 0, changed, n_changed)
+            n_changed = 0
+        cells.changed_mark[c] = True
+        changed[n_changed] = c
+        n_changed += 1
+    return n_changed
+
+
+# ---------------------------------------------------------------------------- visits
+@_compiled
+def _visit_step(f: int, c: int, smooth: Floats, length: float, time: float, duration: float,
+                slide: float, speed: float, geometry: GridGeometry, model: PathModel,
+                visits: PathVisits, counts: PathCounts) -> float:
+    """One step of finger ``f`` in cell ``c`` (``duration`` s at slide factor ``slide`` and
+    fitted ``speed``, centred at ``smooth`` on the smoothed path and ``length`` m long
+    there): its visit of the cell grows by the step and its worth is recomputed. Returns
+    the change of the visit's worth."""
+    r = visits.current[f]
+    if r < 0 or visits.cell[f, r] != c:
+        r = _enter(f, c, smooth, time, model, visits, counts)
+        visits.current[f] = r
+    visits.last[f, r] = time
+    visits.stay[f, r] = visits.stay_id[f]
+    visits.dwell[f, r] += duration
+    visits.g_dwell[f, r] += slide * duration
+    visits.v_dwell[f, r] += speed * duration
+    moved2 = 0.0
+    for axis in range(3):
+        moved2 += (smooth[axis] - visits.pass_entry[f, r, axis]) ** 2
+    # From the start of the pass's first step to the end of this one (a pass that comes
+    # back out where it went in is not through); a crossing seen to within a step (steps
+    # fall anywhere along the path) is a crossing.
+    visits.pass_through[f, r] = min(1.0, (math.sqrt(moved2) + length)
+                                    / (geometry.resolution - model.step))
+    through = max(visits.through[f, r], visits.pass_through[f, r])
+    dwell = visits.dwell[f, r]
+    slide_mean = visits.g_dwell[f, r] / dwell if dwell > 0.0 else slide
+    speed_mean = visits.v_dwell[f, r] / dwell if dwell > 0.0 else speed
+    # The time a slide at the visit's mean speed takes to cross the cell.
+    crossing = geometry.resolution / speed_mean if speed_mean > 0.0 else math.inf
+    worth = slide_mean * (1.0 - model.return_share * (1.0 - through)
+                          + through * min(1.0, crossing / model.pass_time))
+    delta: float = worth - visits.worth[f, r]
+    visits.worth[f, r] = worth
+    return delta
+
+
+@_compiled
+def _enter(f: int, c: int, smooth: Floats, time: float, model: PathModel, visits: PathVisits,
+           counts: PathCounts) -> int:
+    """Finger ``f`` enters cell ``c``: its visit of the last ``visit_gap`` seconds or of its
+    current stay, moved to the front of the ring, or a new one. Returns its slot."""
+    ring = visits.cell.shape[1]
+    head = visits.head[f]
+    found = -1
+    for back in range(1, min(head, ring) + 1):
+        slot = (head - back) % ring
+        if visits.last[f, slot] < time - model.visit_gap and \
+                visits.stay[f, slot] != visits.stay_id[f]:
+            break                     # this one and all older ones are over
+        if visits.cell[f, slot] == c:
+            found = slot
+            break
+    new = head % ring
+    if found < 0 and visits.cell[f, new] >= 0 and (
+            visits.last[f, new] >= time - model.visit_gap
+            or visits.stay[f, new] == visits.stay_id[f]):
+        counts.overwritten[0] += 1
+    if found >= 0 and found != new:
+        visits.last[f, new] = visits.last[f, found]
+        visits.dwell[f, new] = visits.dwell[f, found]
+        visits.g_dwell[f, new] = visits.g_dwell[f, found]
+        visits.v_dwell[f, new] = visits.v_dwell[f, found]
+        visits.worth[f, new] = visits.worth[f, found]
+        visits.through[f, new] = visits.through[f, found]
+        visits.pass_through[f, new] = visits.pass_through[f, found]
+        for axis in range(3):
+            visits.pass_entry[f, new, axis] = visits.pass_entry[f, found, axis]
+        visits.cell[f, found] = -1
+    elif found < 0:
+        visits.dwell[f, new] = 0.0
+        visits.g_dwell[f, new] = 0.0
+        visits.v_dwell[f, new] = 0.0
+        visits.worth[f, new] = 0.0
+        visits.through[f, new] = 0.0
+        visits.pass_through[f, new] = 0.0
+    if found < 0 or time - visits.last[f, new] > model.pass_gap:
+        # A new pass through the cell: the last one is over.
+        visits.through[f, new] = max(visits.through[f, new], visits.pass_through[f, new])
+        visits.pass_through[f, new] = 0.0
+        for axis in range(3):
+            visits.pass_entry[f, new, axis] = smooth[axis]
+    visits.cell[f, new] = c
+    visits.head[f] = head + 1
+    return int(new)
+
+
+@_inlined
+def _follow_stay(f: int, pos: Floats, model: PathModel, visits: PathVisits) -> None:
+    """A finger that moves farther than ``stay_radius`` from where its stay began is at a
+    new place: its stay starts there."""
+    d2 = 0.0
+    for axis in range(3):
+        d2 += (pos[axis] - visits.anchor[f, axis]) ** 2
+    if not d2 <= model.stay_radius ** 2:     # NaN anchor: the first step
+        visits.stay_id[f] += 1
+        for axis in range(3):
+            visits.anchor[f, axis] = pos[axis]
+
+
+@_compiled
+def _forget_visits(f: int, visits: PathVisits) -> None:
+    """A new stream for finger ``f``: none of its visits can be continued."""
+    visits.cell[f, :] = -1
+    visits.current[f] = -1
+    visits.anchor[f, :] = np.nan
+
