@@ -159,11 +159,11 @@ def listening(**kwargs):
 class PosePublisher:
     """Publishes tracker frames on polhemus/<name>/pose as the driver does (one stamp each)."""
 
-    def __init__(self, names):
+    def __init__(self, names, namespace: str = ''):
         from inhand_mapping.pose_cdr import encode_pose_stamped  # noqa: F401 (import check)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
-        self.node = Node('test_pose_publisher', context=self.context)
+        self.node = Node('test_pose_publisher', namespace=namespace, context=self.context)
         qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
         self.publishers = {name: self.node.create_publisher(PoseStamped, f'polhemus/{name}/pose',
                                                             qos) for name in names}

@@ -146,3 +146,16 @@ def test_bad_override_is_refused_with_its_name(moving_bag, tmp_path):
     assert "parameter 'sensor_sigma' = -1.0 is refused" in result.stderr
     result = build_map(bag, '--set', 'no_such=1', '--output-dir', tmp_path)
     assert result.returncode == 2 and "unknown parameter 'no_such'" in result.stderr
+    result = build_map(bag, '--set', 'pass_tme=0.2', '--output-dir', tmp_path)
+    assert result.returncode == 2 and "(did you mean 'pass_time'?)" in result.stderr
+
+
+def test_a_bad_config_file_is_one_line_and_exit_code_2(moving_bag, tmp_path):
+    bag, _, _ = moving_bag
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('/**/occupancy_node:\n  ros__parameters:\n    resolution: [0.005\n')
+    for config, message in ((bad, f'{bad}: not valid YAML at line 4'),
+                            (tmp_path / 'missing.yaml', 'cannot read the parameter file')):
+        result = build_map(bag, '--config', config, '--output-dir', tmp_path)
+        assert result.returncode == 2, result.stderr
+        assert message in result.stderr and 'Traceback' not in result.stderr

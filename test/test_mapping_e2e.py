@@ -7,6 +7,7 @@ the nodes save is bit for bit the map build_map makes from a bag of the same pos
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import subprocess
@@ -196,6 +197,52 @@ def test_twenty_replays_under_a_cpu_hog_lose_nothing(tmp_path):
     assert 'published while nothing subscribed' not in registration.output()
     assert f'received {20 * per_replay} points' in occupancy.output()
     assert f'{20 * per_replay} points integrated' in occupancy.output()
+
+
+def test_two_hands_side_by_side_in_two_namespaces(tmp_path):
+    """The shipped files key their sections /**/node_name, so they apply under any
+    namespace: a left and a right hand's graphs run side by side with the static file
+    (static mode, its workspace), each mapping its own hand's poses into its own map."""
+    frames, centre = sphere_session(seconds=4.0, surface_points=12, moving=False)
+    shift = np.array([0.05, 0.0, 0.0])
+    hands = {'left_hand': frames,
+             'right_hand': [(t, {name: (p + shift, q) for name, (p, q) in frame.items()})
+                            for t, frame in frames]}
+    config = str(WORKSPACE / 'config' / 'mapping_static.yaml')
+    with contextlib.ExitStack() as stack:
+        processes = {}
+        for hand in hands:
+            ros = ['--ros-args', '-r', f'__ns:=/{hand}', '--params-file', config]
+            processes[hand] = (
+                stack.enter_context(running(['registration_node', *ros])),
+                stack.enter_context(running(['occupancy_node', *ros, '-p',
+                                             f'output_dir:={tmp_path}', '-p',
+                                             f'map_name:={hand}'])))
+        for hand, hand_frames in hands.items():
+            publisher = PosePublisher(['thumb', 'index', 'middle'], namespace=hand)
+            try:
+                publisher.wait_for_subscribers()
+                publisher.publish([(t, {k: v for k, v in frame.items() if k != 'object'})
+                                   for t, frame in hand_frames], rate_factor=4.0)
+            finally:
+                publisher.close()
+        for hand, hand_frames in hands.items():
+            deadline = time.monotonic() + 20.0
+            while True:
+                assert call_trigger(f'/{hand}/occupancy/save').success
+                grid, _ = load_npz(tmp_path / f'{hand}.npz')
+                if grid.hits.sum() >= 3 * len(hand_frames) or time.monotonic() > deadline:
+                    break
+                time.sleep(0.5)
+            assert grid.hits.sum() == 3 * len(hand_frames), hand
+            registration, occupancy = processes[hand]
+            assert 'in static mode' in registration.output()   # the file applied
+            assert 'centred at [0.25, 0.0, 0.05]' in occupancy.output()
+            cells = grid.cells(threshold=0.8)[0]
+            assert len(cells) > 10
+            own = centre + np.array([0.25, 0.0, 0.05]) + (shift if hand == 'right_hand' else 0)
+            radial = np.linalg.norm(cells - own, axis=1) - RADIUS
+            assert np.abs(radial).max() <= 0.005 * math.sqrt(3) / 2 + 1e-6, hand
 
 
 def test_reset_service_clears_the_map(tmp_path):

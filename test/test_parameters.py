@@ -4,7 +4,13 @@ import math
 
 import pytest
 
-from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
+from inhand_common.parameters import (
+    ParameterError,
+    ParamSpec,
+    load_yaml_parameters,
+    read_parameter_file,
+    validate,
+)
 
 SPECS = [
     ParamSpec('port', '/dev/ttyUSB0', 'serial device'),
@@ -157,6 +163,55 @@ def test_unknown_names_reported():
     assert len(error.problems) == 1
     assert "'stationz'" in error.problems[0]
     assert 'stations' in error.problems[0]  # the known names are listed
+
+
+def test_a_typo_is_refused_with_the_closest_valid_name():
+    error = refused({'stationz': 4, 'zzz': 1})
+    assert "unknown parameter 'stationz' (did you mean 'stations'?)" in error.problems
+    assert any("'zzz' (known: " in problem for problem in error.problems)
+
+
+def test_an_empty_list_is_shown_as_typed():
+    # -p name:=[] reaches a node as no value at all
+    for value in (None, []):
+        error = refused({'hemisphere': value})
+        assert "'hemisphere' = [] is refused" in error.problems[0]
+
+
+def test_unreadable_and_malformed_parameter_files_are_one_line(tmp_path):
+    missing = tmp_path / 'missing.yaml'
+    with pytest.raises(ParameterError) as caught:
+        read_parameter_file(str(missing))
+    assert caught.value.problems == [f'{missing}: cannot read the parameter file '
+                                     '(No such file or directory)']
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('node:\n  ros__parameters:\n    mode: [static\n', encoding='utf-8')
+    with pytest.raises(ParameterError) as caught:
+        load_yaml_parameters(str(bad), 'node')
+    assert len(caught.value.problems) == 1
+    assert caught.value.problems[0].startswith(f'{bad}: not valid YAML at line 4')
+
+
+@pytest.mark.parametrize('arguments, message', [
+    (['--params-file', 'MISSING'], 'MISSING: cannot read the parameter file'),
+    (['--params-file', 'BAD'], 'BAD: not valid YAML at line'),
+    (['-p', 'finger_nams:=[a]'], "unknown parameter 'finger_nams' (did you mean 'finger_names'?)"),
+    (['-p', 'finger_names:=[]'], "'finger_names' = [] is refused"),
+], ids=['missing-file', 'bad-yaml', 'typo', 'empty-list'])
+def test_a_node_refuses_bad_parameters_in_a_line_without_a_traceback(tmp_path, arguments,
+                                                                     message):
+    import subprocess
+
+    from ros_helpers import executable_path
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('registration_node:\n  ros__parameters:\n    mode: [static\n')
+    paths = {'MISSING': str(tmp_path / 'missing.yaml'), 'BAD': str(bad)}
+    arguments = [paths.get(a, a) for a in arguments]
+    message = message.replace('MISSING', paths['MISSING']).replace('BAD', paths['BAD'])
+    result = subprocess.run([executable_path('registration_node'), '--ros-args', *arguments],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert message in result.stderr and 'Traceback' not in result.stderr
 
 
 def test_several_problems_reported_together():

@@ -353,9 +353,9 @@ def ms(times: list[float]) -> str:
 
 
 def occupied_threshold() -> float:
-    import yaml
-    config = yaml.safe_load((WORKSPACE / 'config' / 'mapping.yaml').read_text())
-    return float(config['occupancy_node']['ros__parameters']['occupied_threshold'])
+    from inhand_common.parameters import load_yaml_parameters
+    values = load_yaml_parameters(str(WORKSPACE / 'config' / 'mapping.yaml'), 'occupancy_node')
+    return float(values['occupied_threshold'])
 
 
 def full_grid():

@@ -20,12 +20,26 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from inhand_common.blas_threads import single_threaded_blas
-from inhand_common.parameters import ParameterError
+from inhand_common.parameters import ParameterError, read_parameter_file
 
 __all__ = ['EXIT_BAD_PARAMETERS', 'run_node']
 
 EXIT_BAD_PARAMETERS = 2
 SPIN_SLICE = 0.1  # s: how often the spin loop looks at the stop flag
+
+
+def _parameter_files(argv: Sequence[str]) -> list[str]:
+    """The paths given to ``--params-file`` after ``--ros-args``."""
+    files = []
+    in_ros_args = False
+    for k, arg in enumerate(argv):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file' and k + 1 < len(argv):
+            files.append(argv[k + 1])
+    return files
 
 
 def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | None = None,
@@ -35,11 +49,17 @@ def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | Non
     ``name`` prefixes the message printed when parameters are refused.
     """
     single_threaded_blas()
+    argv = list(args) if args is not None else list(sys.argv)
+    try:
+        for path in _parameter_files(argv):    # rcl would say it in a 60-line traceback
+            read_parameter_file(path)
+    except ParameterError as error:
+        print(f'{name}: {error.problems[0]}', file=sys.stderr)
+        return EXIT_BAD_PARAMETERS
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}
-    rclpy.init(args=list(args) if args is not None else sys.argv,
-               signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         node = make_node()

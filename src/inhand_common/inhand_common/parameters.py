@@ -13,12 +13,13 @@ No rclpy here: this module is tested directly.
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ['ParamSpec', 'ParameterError', 'load_yaml_parameters', 'validate']
+__all__ = ['ParamSpec', 'ParameterError', 'load_yaml_parameters', 'unknown_parameter', 'validate']
 
 
 class ParameterError(ValueError):
@@ -137,7 +138,9 @@ class ParamSpec:
         return True
 
     def _refusal(self, value: Any) -> str:
-        return f"parameter '{self.name}' = {value!r} is refused: allowed is {self.allowed()}"
+        # An empty list reaches a node as no value at all: show what the user typed.
+        shown = '[]' if self.is_list and value in (None, [], ()) else repr(value)
+        return f"parameter '{self.name}' = {shown} is refused: allowed is {self.allowed()}"
 
 
 def validate(specs: Iterable[ParamSpec], values: Mapping[str, Any]) -> dict[str, Any]:
@@ -148,8 +151,7 @@ def validate(specs: Iterable[ParamSpec], values: Mapping[str, Any]) -> dict[str,
     """
     specs = list(specs)
     known = {s.name for s in specs}
-    problems = [f"unknown parameter '{name}' (known: {', '.join(sorted(known))})"
-                for name in values if name not in known]
+    problems = [unknown_parameter(name, known) for name in values if name not in known]
     result: dict[str, Any] = {}
     for spec in specs:
         value = spec.coerce(values.get(spec.name, spec.default))
@@ -162,18 +164,40 @@ def validate(specs: Iterable[ParamSpec], values: Mapping[str, Any]) -> dict[str,
     return result
 
 
+def unknown_parameter(name: str, known: Iterable[str]) -> str:
+    """The refusal of a parameter name the node does not have, with the closest valid one."""
+    known = sorted(known)
+    closest = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+    hint = f"did you mean '{closest[0]}'?" if closest else f"known: {', '.join(known)}"
+    return f"unknown parameter '{name}' ({hint})"
+
+
+def read_parameter_file(path: str) -> dict[str, Any]:
+    """A ROS parameter file as a mapping; ParameterError in one line naming the file when
+    it cannot be read, is not YAML, or is not a mapping."""
+    import yaml  # PyYAML comes with the ROS wheels; imported lazily for speed
+
+    from inhand_common.yaml_errors import describe_yaml_error
+    try:
+        with open(path, encoding='utf-8') as stream:
+            document = yaml.safe_load(stream) or {}
+    except OSError as error:
+        raise ParameterError([f'{path}: cannot read the parameter file '
+                              f'({error.strerror or error})']) from None
+    except yaml.YAMLError as error:
+        raise ParameterError([f'{path}: {describe_yaml_error(error)}']) from None
+    if not isinstance(document, dict):
+        raise ParameterError([f'{path}: not a ROS parameter file (top level is not a mapping)'])
+    return document
+
+
 def load_yaml_parameters(path: str, node_name: str) -> dict[str, Any]:
     """The ``ros__parameters`` of ``node_name`` (or of ``/**``) in a ROS parameter file.
 
     Lets tools without ROS read the same ``config/*.yaml`` the nodes use. Wildcard
     sections apply first so a node's own section overrides them, as in ROS.
     """
-    import yaml  # PyYAML comes with the ROS wheels; imported lazily for speed
-
-    with open(path, encoding='utf-8') as stream:
-        document = yaml.safe_load(stream) or {}
-    if not isinstance(document, dict):
-        raise ParameterError([f'{path}: not a ROS parameter file (top level is not a mapping)'])
+    document = read_parameter_file(path)
     merged: dict[str, Any] = {}
     # As rcl matches them: every node, then this node in any namespace, then by its name.
     for key in ('/**', '**', '/**/' + node_name, node_name, '/' + node_name):

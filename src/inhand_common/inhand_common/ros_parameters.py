@@ -16,7 +16,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from inhand_common.parameters import ParameterError, ParamSpec, validate
+from inhand_common.parameters import ParameterError, ParamSpec, unknown_parameter, validate
 
 __all__ = ['command_line_overrides', 'declare_parameters']
 
@@ -62,6 +62,12 @@ def command_line_overrides(node: Node) -> dict[str, Parameter]:
     return overrides
 
 
+def _rclpy_own(name: str) -> bool:
+    """Parameters every rclpy node takes itself (sim time, QoS overrides, ...)."""
+    return name in ('use_sim_time', 'start_type_description_service') or \
+        name.startswith('qos_overrides.')
+
+
 def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
     """Declare every spec on ``node`` and return the validated values by name.
 
@@ -76,9 +82,9 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]
     except ParameterError as error:
         problems.extend(error.problems)
         values = {}
-    unknown = sorted(set(overrides) - {s.name for s in specs} - {'use_sim_time'})
-    if unknown:
-        node.get_logger().warning(f'ignoring parameters this node does not have: {unknown}')
+    known = {s.name for s in specs}
+    problems.extend(unknown_parameter(name, known) for name in sorted(overrides)
+                    if name not in known and not _rclpy_own(name))
     if problems:
         raise ParameterError(problems)
     for spec in specs:

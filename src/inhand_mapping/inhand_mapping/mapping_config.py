@@ -15,7 +15,13 @@ from typing import Any
 
 import yaml
 
-from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
+from inhand_common.parameters import (
+    ParameterError,
+    ParamSpec,
+    load_yaml_parameters,
+    unknown_parameter,
+    validate,
+)
 from inhand_common.ros_names import DEFAULT_OBJECT_STATION, station_pose_topic
 from inhand_mapping.fusion import FUSIONS, POOLINGS
 from inhand_mapping.occupancy import DISTANCES, TOUCH_MODELS, GridSpec, OccupancyGrid, SensorModel
@@ -234,7 +240,8 @@ def load_parameters(config: str | Sequence[str] | None, overrides: dict,
     occupancy_names = {s.name for s in OCCUPANCY_PARAMETERS}
     unknown = sorted(set(overrides) - registration_names - occupancy_names - set(also_known))
     if unknown:
-        raise ParameterError([f"--set: unknown parameter '{name}'" for name in unknown])
+        known = registration_names | occupancy_names | set(also_known)
+        raise ParameterError([f'--set: {unknown_parameter(name, known)}' for name in unknown])
     registration.update({k: v for k, v in overrides.items() if k in registration_names})
     occupancy.update({k: v for k, v in overrides.items() if k in occupancy_names})
     return (RegistrationConfig.from_parameters(validate(REGISTRATION_PARAMETERS, registration)),
