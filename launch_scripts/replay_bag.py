@@ -1,7 +1,7 @@
 """Replay a bag of the driver's topics through the mapping graph, then save and show the map.
 
     .venv/bin/python launch_scripts/replay_bag.py BAG [--config FILE] [--output DIR]
-        [--name NAME] [--rate FACTOR | --fast] [--no-render]
+        [--name NAME] [--rate FACTOR | --fast] [--no-render] [--topics T ...]
 
 Starts registration_node and occupancy_node (and stereo_node with config/stereo.yaml when the
 bag holds a stereo pair: it publishes stereo/points and occupancy/textured), replays BAG
@@ -10,12 +10,15 @@ waits for the last registered points to be integrated, calls occupancy/save, sto
 nodes, then renders the map (render_map) and, when the bag has a ground-truth sidecar
 (BAG.truth.npz, written by simulate_session), prints its metrics (map_metrics). The
 config defaults to config/mapping.yaml (tracked object) when the bag has an object sensor
-topic, else config/mapping_static.yaml.
+topic, else config/mapping_static.yaml. Only the graph's inputs are replayed (driver poses,
+stereo images and camera infos), so a bag recorded from a live run, which also holds maps
+and diagnostics, replays like a driver's bag; --topics chooses.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 from pathlib import Path
@@ -32,6 +35,15 @@ QUIET_TEXTURE = 2.0  # s without a new textured map: the last one is of the fina
 
 
 STEREO_IMAGE_TOPIC = 'stereo/left/image_raw'
+# What the graph takes in: the driver's poses and the stereo pairs. A bag recorded from a
+# live run also holds the graph's outputs (maps, diagnostics): replaying those would wait
+# for subscribers that never come, and feed the graph its own results.
+GRAPH_INPUTS = re.compile(r'^(polhemus/[^/]+/pose|stereo/(left|right)/(image_raw|camera_info))$')
+
+
+def graph_inputs(topics: set[str]) -> list[str]:
+    """The topics of a bag the mapping graph takes in, sorted."""
+    return sorted(t for t in topics if GRAPH_INPUTS.match(t))
 
 
 def bag_topics(bag: Path) -> set[str] | None:
@@ -44,11 +56,19 @@ def bag_topics(bag: Path) -> set[str] | None:
 
 
 def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: list[str],
-           render: bool = True) -> int:
+           render: bool = True, only: list[str] | None = None) -> int:
     if not bag.exists():
         print(f'replay_bag: {bag}: no such bag', file=sys.stderr)
         return 2
     topics = bag_topics(bag)
+    replayed = only
+    if replayed is None and topics is not None:   # unreadable: bag_replay says why
+        replayed = graph_inputs(topics)
+        if not replayed:
+            print(f'replay_bag: {bag} holds none of the graph\'s inputs (polhemus/<station>/pose, '
+                  f'stereo pairs); its topics: {", ".join(sorted(topics))}; --topics chooses',
+                  file=sys.stderr)
+            return 2
     if config is None:
         tracked = topics is None or OBJECT_POSE_TOPIC in topics
         config = WORKSPACE / 'config' / ('mapping.yaml' if tracked else 'mapping_static.yaml')
@@ -67,7 +87,8 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
         if not watch.wait_connected():
             print('[launch] the mapping nodes did not come up', file=sys.stderr)
             return 1
-        code = group.run('replay', ['bag_replay', str(bag), *rate_args])
+        code = group.run('replay', ['bag_replay', str(bag), *rate_args,
+                                    *(['--topics', *replayed] if replayed else [])])
         if code != 0:
             print(f'[launch] bag_replay ended with exit code {code}', file=sys.stderr)
             if code != 1:  # 1: truncated bag, replayed what could be read
@@ -117,10 +138,13 @@ def main(argv=None) -> int:
     speed.add_argument('--rate', type=float, help='replay speed factor (default: --fast)')
     speed.add_argument('--fast', action='store_true', help='as fast as the graph keeps up')
     parser.add_argument('--no-render', action='store_true')
+    parser.add_argument('--topics', nargs='+', metavar='T',
+                        help="replay these topics (default: the graph's inputs the bag holds: "
+                        'driver poses, stereo images and camera infos)')
     args = parser.parse_args(argv)
     rate_args = ['--rate', str(args.rate)] if args.rate else ['--fast']
     return replay(args.bag, args.config, args.output, args.name or args.bag.name, rate_args,
-                  render=not args.no_render)
+                  render=not args.no_render, only=args.topics)
 
 
 if __name__ == '__main__':

@@ -92,7 +92,10 @@ def stamp_parts(t: float) -> tuple[int, int]:
     return ns // 1_000_000_000, ns % 1_000_000_000
 
 
-def write_pose_bag(path: Path, frames, frame_id: str = 'polhemus_source') -> Path:
+def write_pose_bag(path: Path, frames, frame_id: str = 'polhemus_source',
+                   diagnostics: bool = False) -> Path:
+    """The frames as PoseStamped messages; ``diagnostics`` adds an empty DiagnosticArray
+    on /diagnostics every second, as a bag recorded from a live run holds."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -101,6 +104,17 @@ def write_pose_bag(path: Path, frames, frame_id: str = 'polhemus_source') -> Pat
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         connections = {name: writer.add_connection('/' + station_pose_topic(name), msgtype,
                                                    typestore=store) for name in names}
+        if diagnostics:
+            array = store.types['diagnostic_msgs/msg/DiagnosticArray']
+            header, stamp = store.types['std_msgs/msg/Header'], store.types[
+                'builtin_interfaces/msg/Time']
+            topic = writer.add_connection('/diagnostics', array.__msgtype__, typestore=store)
+            for t in np.arange(frames[0][0], frames[-1][0], 1.0):
+                sec, nanosec = stamp_parts(float(t))
+                message = array(header=header(stamp=stamp(sec=sec, nanosec=nanosec),
+                                              frame_id=''), status=[])
+                writer.write(topic, sec * 1_000_000_000 + nanosec,
+                             bytes(store.serialize_cdr(message, array.__msgtype__)))
         for t, frame in frames:
             sec, nanosec = stamp_parts(t)
             for name, (p, q) in frame.items():

@@ -61,6 +61,24 @@ def test_live_graph_saves_the_map_and_leaves_no_orphans(tmp_path, how):
     assert children_alive(started) == [], f'orphans left: {children_alive(started)}'
 
 
+def test_replaying_a_bag_of_a_live_run_replays_only_the_graphs_inputs(tmp_path):
+    """A bag recorded from a live run also holds the graph's outputs (here diagnostics):
+    the launcher replays only the driver's poses, so nothing waits for a subscriber that
+    never comes, and every pose reaches the map."""
+    from inhand_mapping.map_io import load_npz
+    from pose_sessions import sphere_session, write_pose_bag
+    frames, _ = sphere_session(seconds=2.0, surface_points=12, moving=False)
+    bag = write_pose_bag(tmp_path / 'live_run', frames, diagnostics=True)
+    result = subprocess.run(
+        [sys.executable, str(WORKSPACE / 'launch_scripts' / 'replay_bag.py'), str(bag),
+         '--output', str(tmp_path / 'out'), '--no-render'],
+        capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert 'diagnostics' not in result.stderr          # not replayed, not waited for
+    grid, _ = load_npz(tmp_path / 'out' / 'live_run.npz')
+    assert grid.counts.integrated == 3 * len(frames)
+
+
 def test_replaying_a_bundled_bag_makes_the_map_pictures_and_metrics(tmp_path):
     """What the demo does, on the small static bag: graph over DDS, save, render, metrics."""
     import json

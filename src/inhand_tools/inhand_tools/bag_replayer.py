@@ -23,7 +23,7 @@ from inhand_tools.message_types import UnknownMessageType, message_class
 __all__ = ['ReplayOptions', 'ReplayStats', 'Replayer', 'Stream', 'plan_streams', 'replay_bag',
            'replay_summary', 'start_stamp']
 
-TIMED_WAIT = 1.0          # s: a timed replay waits this long at most for subscribers
+SUBSCRIBER_WAIT = 10.0    # s: a replay waits this long at most for a subscriber on every topic
 SETTLE = 0.5              # s: after the match, for the readers to match our writers too
 TIMED_ACK_TIMEOUT = 5.0   # s: at the end of a timed replay, wait at most this for acks
 SLOW_PUBLISH = 0.002      # s: a publish() that took longer was held back by a reader
@@ -162,10 +162,10 @@ class Replayer:
 
     def wait_for_subscribers(self) -> None:
         """Messages published before a subscriber is matched never reach it: wait for one
-        on every topic (as long as it takes in --fast, TIMED_WAIT otherwise)."""
+        on every topic (SUBSCRIBER_WAIT unless told otherwise), then say which have none."""
         timeout = self.options.wait_subscribers
         if timeout is None:
-            timeout = None if self.options.fast else TIMED_WAIT
+            timeout = SUBSCRIBER_WAIT
         if timeout == 0.0:
             return
         from inhand_tools.ros_session import wait_until
@@ -180,8 +180,9 @@ class Replayer:
             print(f'bag_replay: waiting for a subscriber on {", ".join(lonely())} ({limit})',
                   file=sys.stderr, flush=True)
         if not wait_until(lambda: not lonely(), self.stop, timeout) and not self.stop.is_set():
-            print(f'bag_replay: no subscriber on {", ".join(lonely())}; starting anyway',
-                  file=sys.stderr, flush=True)
+            print(f'bag_replay: no subscriber on {", ".join(lonely())} after {timeout:g} s: '
+                  'their messages reach nobody (--topics leaves them out, '
+                  '--wait-subscribers waits longer); starting', file=sys.stderr, flush=True)
         # Our writers see the readers; the readers may not see our writers yet, and what comes
         # before that is lost to a best-effort reader (a camera topic: the one stereo pair at
         # a bag's start) and to a volatile reliable one. Let discovery settle both ways.

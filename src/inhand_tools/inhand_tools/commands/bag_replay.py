@@ -11,9 +11,10 @@ namespace or a remapping given with ``--ros-args`` applies), with the message ty
 names (``pkg/msg/Type`` -> ``pkg.msg.Type``). The QoS is the one the bag recorded as
 offered (reliable or best effort, transient-local or volatile, the depth) and otherwise
 reliable/volatile depth 1000. Timing: the gaps between the bag's timestamps divided by
-``--rate`` (default 1), after waiting up to 1 s (``--wait-subscribers``) for a
+``--rate`` (default 1), after waiting up to 10 s (``--wait-subscribers``) for a
 subscriber on every topic: a message published before a subscriber is matched never
-reaches it. ``--start-offset`` skips the bag's first seconds; ``--loop`` starts again at
+reaches it (the topics still without one are named, then the replay starts).
+``--start-offset`` skips the bag's first seconds; ``--loop`` starts again at
 the end until Ctrl-C. A progress line goes to stderr (redrawn on a terminal, every 10%
 otherwise) and a summary to stdout at the end. A truncated MCAP bag is replayed up to
 its cut (read record by record, as ``build_map`` does) and said so.
@@ -21,7 +22,8 @@ its cut (read record by record, as ``build_map`` does) and said so.
 ``--fast``: as fast as the subscribers keep up, with nothing lost. How:
 
 1. Before the first message it waits until every replayed topic has a matched
-   subscriber (``--wait-subscribers S`` gives up after S seconds and starts anyway).
+   subscriber, up to 10 s (``--wait-subscribers S``), then names those without one and
+   starts anyway.
    Messages published before a reader is matched would never reach it.
 2. Every topic is published reliable. Volatile topics use KEEP_ALL history: the writer
    keeps each message until every matched reliable reader has acknowledged it, and a
@@ -86,9 +88,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help='replay only these topics (default: all)')
     parser.add_argument('--wait-subscribers', type=non_negative_float, metavar='SECONDS',
                         help='before starting, wait up to SECONDS for a subscriber on every '
-                        'topic (default: --fast waits as long as it takes; a timed replay '
-                        'waits up to 1 s, time for running subscribers to be discovered, '
-                        'so their first messages are not lost; 0: start at once)')
+                        'topic, so their first messages are not lost (default 10; then the '
+                        'topics without one are named and the replay starts; 0: at once)')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
     return parser.parse_args(argv)
 
