@@ -103,6 +103,13 @@ def test_dropped_frames_counted_and_garbage_resynced():
         assert int(values['bytes_dropped']) == 500
         assert int(values['resyncs']) >= 1
         assert values['incomplete_frames'] == '0'
+        # WARN while it happened, for the drops and for the resync alike; the log says so then.
+        with listener.lock:
+            warnings = [d.status[0].message for d in listener.diagnostics
+                        if d.status[0].level[0] == 1]
+        assert any('dropped' in m for m in warnings), warnings
+        assert any('resync' in m and '500 bytes skipped' in m for m in warnings), warnings
+        assert 'resync' in driver.output()
         assert driver.interrupt() == 0
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from builtin_interfaces.msg import Time
 
-__all__ = ['stamp_from_seconds']
+__all__ = ['stamp_from_nanoseconds', 'stamp_from_seconds']
 
 
 def stamp_from_seconds(seconds: float) -> Time:
@@ -12,3 +12,9 @@ def stamp_from_seconds(seconds: float) -> Time:
     nanoseconds = int(round(seconds * 1e9))
     return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
+
+
+def stamp_from_nanoseconds(nanoseconds: int) -> Time:
+    """builtin_interfaces/Time of integer nanoseconds (exact)."""
+    nanoseconds = int(nanoseconds)
+    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from inhand_common.frame_names import FRAME_PARAMETERS, FrameNames
 from inhand_common.parameters import (
     ParameterError,
     ParamSpec,
@@ -46,6 +47,7 @@ REGISTRATION_PARAMETERS = (
               'may hold back the time-ordered output', minimum=0.01, maximum=60.0),
     ParamSpec('publish_period', 0.05, 'Seconds between registration/points messages '
               '(registered points are batched)', minimum=0.001, maximum=5.0),
+    *FRAME_PARAMETERS,
 )
 
 OCCUPANCY_PARAMETERS = (
@@ -102,6 +104,7 @@ OCCUPANCY_PARAMETERS = (
               'at full weight)', choices=POOLINGS),
     ParamSpec('output_dir', 'maps', 'Folder occupancy/save writes <map_name>.npz and .ply to'),
     ParamSpec('map_name', 'map', 'File name stem of saved maps'),
+    *FRAME_PARAMETERS,
 )
 
 
@@ -115,6 +118,7 @@ class RegistrationConfig:
     max_gap: float                  # s
     max_pending: float              # s (wall clock)
     publish_period: float           # s
+    frames: FrameNames = field(default_factory=FrameNames)
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any]) -> RegistrationConfig:
@@ -126,12 +130,13 @@ class RegistrationConfig:
         if values['mode'] == 'tracked' and values['object_name'] in names:
             problems.append(f"parameter 'object_name' = {values['object_name']!r} is also in "
                             "'finger_names'")
+        frames = FrameNames.from_parameters(values, problems)
         if problems:
             raise ParameterError(problems)
         return cls(mode=values['mode'], object_name=values['object_name'],
                    finger_names=tuple(names), max_gap=float(values['max_gap']),
                    max_pending=float(values['max_pending']),
-                   publish_period=float(values['publish_period']))
+                   publish_period=float(values['publish_period']), frames=frames)
 
     @property
     def tracked(self) -> bool:
@@ -165,6 +170,7 @@ class OccupancyConfig:
     fusion: str = 'none'
     entropy_radius: int = 0
     entropy_pooling: str = 'linear'
+    frames: FrameNames = field(default_factory=FrameNames)
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any]) -> OccupancyConfig:
@@ -184,6 +190,7 @@ class OccupancyConfig:
         if values['touch_model'] == 'path' and values['neighbourhood'] != 1:
             problems.append("parameter 'neighbourhood' = 27 is for 'touch_model' samples: the "
                             'path model updates the cells the path crosses (use 1)')
+        frames = FrameNames.from_parameters(values, problems)
         if problems:
             raise ParameterError(problems)
         grid = GridSpec(values['workspace_size'], values['resolution'],
@@ -199,7 +206,7 @@ class OccupancyConfig:
                    publish_rate=float(values['publish_rate']),
                    output_dir=Path(values['output_dir']), map_name=values['map_name'],
                    fusion=values['fusion'], entropy_radius=int(values['entropy_radius']),
-                   entropy_pooling=values['entropy_pooling'])
+                   entropy_pooling=values['entropy_pooling'], frames=frames)
 
     @property
     def log_odds_clamp(self) -> tuple[float, float]:

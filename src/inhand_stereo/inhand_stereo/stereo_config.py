@@ -10,12 +10,13 @@ so a bag processed offline is coloured as the node would colour it.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from inhand_common.frame_names import FrameNames
 from inhand_common.parameters import ParameterError, ParamSpec, load_yaml_parameters, validate
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS
 from inhand_mapping.occupancy import GridSpec
@@ -66,7 +67,8 @@ STEREO_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec('support_fraction', 0.2, 'A plane holding this share of the workspace\'s '
               'points, with the rest on one side, is a support and is removed',
               minimum=0.01, maximum=1.0),
-    *_shared(REGISTRATION_PARAMETERS, 'mode', 'object_name', 'max_gap'),
+    *_shared(REGISTRATION_PARAMETERS, 'mode', 'object_name', 'max_gap', 'frame_prefix',
+             'tracker_frame', 'map_frame'),
     *_shared(OCCUPANCY_PARAMETERS, 'workspace_size', 'resolution', 'workspace_centre',
              'clamp_min', 'clamp_max'),
 )
@@ -97,6 +99,7 @@ class StereoConfig:
     vision: VisionModel
     segmentation: SegmentationConfig
     camera_pose_given: bool = True       # False: no file set camera_pose (no calibration)
+    frames: FrameNames = field(default_factory=FrameNames)
 
     @property
     def resolution(self) -> float:
@@ -125,6 +128,10 @@ class StereoConfig:
                                  spread_window=int(values['vision_spread_window']))
         except ValueError as error:
             raise ParameterError([f'stereo_node parameters: {error}']) from None
+        problems: list[str] = []
+        frames = FrameNames.from_parameters(values, problems)
+        if problems:
+            raise ParameterError(problems)
         return cls(disparity=DisparityConfig.from_parameters(
                        {spec.name: values[spec.name] for spec in DISPARITY_PARAMETERS}),
                    camera_pose=camera_pose_from(values['camera_pose']),
@@ -134,7 +141,7 @@ class StereoConfig:
                    segmentation=SegmentationConfig(
                        plane_tolerance=float(values['plane_tolerance']),
                        support_fraction=float(values['support_fraction'])),
-                   camera_pose_given=camera_pose_given)
+                   camera_pose_given=camera_pose_given, frames=frames)
 
 
 def load_stereo_config(configs: Iterable[str], overrides: Mapping[str, Any] | None = None

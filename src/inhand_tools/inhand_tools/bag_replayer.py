@@ -14,13 +14,14 @@ the ROS runtime loads.
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 
 from inhand_common.bag_source import BagError, BagSource, Progress, relative_name
 from inhand_tools.message_types import UnknownMessageType, message_class
 
-__all__ = ['ReplayOptions', 'ReplayStats', 'Replayer', 'Stream', 'plan_streams', 'replay_bag',
+__all__ = ['BagClock', 'ReplayOptions', 'ReplayStats', 'Replayer', 'Stream', 'plan_streams', 'replay_bag',
            'replay_summary', 'start_stamp']
 
 SUBSCRIBER_WAIT = 10.0    # s: a replay waits this long at most for a subscriber on every topic
@@ -38,6 +39,7 @@ class ReplayOptions:
     loop: bool = False                      # start again at the end
     wait_subscribers: float | None = None   # s; None: the default of the mode
     quiet: bool = False                     # no progress line
+    clock_hz: float | None = None           # publish the bag's time on /clock at this rate
 
 
 @dataclass
@@ -64,6 +66,7 @@ class ReplayStats:
     held_back: float = 0.0
     blocked: int = 0
     ack_wait: float = 0.0    # s after the last publish until every message was acknowledged
+    clock_messages: int = 0  # /clock messages published
     stopped: bool = False
     per_topic: dict = field(default_factory=dict)
 
@@ -140,8 +143,19 @@ class Replayer:
             if options.fast and stream.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
                 stream.window = stream.qos.depth
             stream.publisher = node.create_publisher(stream.cls, stream.name, stream.qos)
+        self.clock = BagClock(node, options.clock_hz, options.rate) if options.clock_hz else None
 
     def run(self, start_ns: int) -> ReplayStats:
+        if self.clock is not None:
+            self.clock.start(start_ns)
+        try:
+            self._run(start_ns)
+        finally:
+            if self.clock is not None:
+                self.stats.clock_messages = self.clock.close()
+        return self.stats
+
+    def _run(self, start_ns: int) -> None:
         self.wait_for_subscribers()
         while not self.stop.is_set():
             progress = None
@@ -156,7 +170,6 @@ class Replayer:
         if not self.stats.stopped:
             self.finish()
         self.stats.per_topic = {name: s.published for name, s in self.streams.items()}
-        return self.stats
 
     # -- waiting -----------------------------------------------------------------------
 
@@ -262,10 +275,14 @@ class Replayer:
                 break
             if first_ns is None:
                 first_ns, wall0 = stamp, time.monotonic()
+                if self.clock is not None and not fast:
+                    self.clock.run_from(stamp, wall0)
             elif not fast:
                 delay = wall0 + (stamp - first_ns) * 1e-9 / rate - time.monotonic()
                 if delay > 0 and self.stop.wait(delay):
                     break
+            if fast and self.clock is not None:
+                self.clock.hold(stamp)
             if not self.publish(self.streams[topic], raw):
                 break
             last_ns = stamp
@@ -278,6 +295,8 @@ class Replayer:
             progress.update(last_ns, self.stats.messages + count, first_ns, wall, force=True,
                             pass_messages=count)
             progress.close()
+        if self.clock is not None and last_ns is not None:
+            self.clock.hold(last_ns)
         self.stats.messages += count
         self.stats.wall += wall
         self.stats.passes += 1
@@ -303,6 +322,75 @@ class Replayer:
         self.stats.ack_wait = time.monotonic() - began
 
 
+class BagClock:
+    """The bag's time on ``/clock`` (rosgraph_msgs/Clock), as ``ros2 bag play --clock``:
+    nodes with ``use_sim_time`` then live in the bag's time.
+
+    A thread publishes it ``hz`` times a second (wall clock). While a timed replay runs,
+    the time runs from the first message's stamp at ``rate`` times the wall clock; before
+    it, and after a pass, it holds (at the start, at the last message); in ``--fast`` it is
+    the stamp of the message being published. A ``--loop`` goes back to the start each
+    pass, as a bag played again would."""
+
+    def __init__(self, node, hz: float, rate: float):
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+        self._message = Clock
+        # rosbag2's clock QoS: best effort, the latest only (a late tick is worthless).
+        self._publisher = node.create_publisher(
+            Clock, '/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.period = 1.0 / hz
+        self.rate = rate
+        self._lock = threading.Lock()
+        self._anchor: tuple[int, float | None] = (0, None)   # bag ns, wall when it was
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._tick, name='bag_clock', daemon=True)
+        self.published = 0
+
+    def start(self, bag_ns: int) -> None:
+        self.hold(bag_ns)
+        self._thread.start()
+
+    def hold(self, bag_ns: int) -> None:
+        """Stand at ``bag_ns`` until told otherwise."""
+        with self._lock:
+            moved = self._anchor != (bag_ns, None)
+            self._anchor = (bag_ns, None)
+        if moved:
+            self._publish()
+
+    def run_from(self, bag_ns: int, wall: float) -> None:
+        """Run from ``bag_ns`` at monotonic time ``wall``, ``rate`` times as fast."""
+        with self._lock:
+            self._anchor = (bag_ns, wall)
+        self._publish()
+
+    def now_ns(self) -> int:
+        with self._lock:
+            bag_ns, wall = self._anchor
+        if wall is None:
+            return bag_ns
+        return bag_ns + round((time.monotonic() - wall) * self.rate * 1e9)
+
+    def _publish(self) -> None:
+        from builtin_interfaces.msg import Time
+        ns = self.now_ns()
+        self._publisher.publish(self._message(clock=Time(sec=ns // 1_000_000_000,
+                                                         nanosec=ns % 1_000_000_000)))
+        self.published += 1
+
+    def _tick(self) -> None:
+        while not self._done.wait(self.period):
+            self._publish()
+
+    def close(self) -> int:
+        """Stop the thread; the number of /clock messages published."""
+        self._done.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        return self.published
+
+
 # -- the summary ---------------------------------------------------------------------------
 
 def replay_summary(stats: ReplayStats, streams: dict[str, Stream], options: ReplayOptions) -> str:
@@ -316,6 +404,9 @@ def replay_summary(stats: ReplayStats, streams: dict[str, Stream], options: Repl
     width = max(len(n) for n in streams)
     for name, stream in sorted(streams.items()):
         lines.append(f'  {name:<{width}}  {stream.published:>9}  {stream.msgtype}')
+    if options.clock_hz:
+        lines.append(f'  /clock: {stats.clock_messages} messages (the bag\'s time, '
+                     f'{options.clock_hz:g} Hz)')
     if options.fast and (stats.held_back > 0.01 or stats.blocked):
         lines.append(f'  held back {stats.held_back:.2f} s by subscribers that were not '
                      f'keeping up ({stats.blocked} publish attempts found the writer full)')

@@ -1,9 +1,10 @@
 """Subscribe to a topic and print its messages as text: the library behind the
 ``topic_echo`` command (the text itself is :mod:`inhand_tools.echo_format`).
 
-``echo_topic`` runs a ROS session of its own: it resolves the topic name, takes the
-message type from the graph unless one is given, subscribes with the QoS the publishers
-offer (or the one asked for) and prints until stopped or ``count`` messages are printed.
+``echo_topic`` runs a ROS session of its own: it resolves the topic name, waits for a
+publisher of it, takes the message type from the graph (or checks the one given against
+it), subscribes with the QoS the publishers offer (or the one asked for) and prints until
+stopped or ``count`` messages are printed.
 
 No rclpy import at module level, so the command checks its arguments before the ROS
 runtime loads.
@@ -14,22 +15,16 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from inhand_tools.echo_format import (
-    Options,
-    check_field_path,
-    format_message,
-    get_field,
-    is_scalar,
-    type_name,
-)
+from inhand_tools.echo_format import FilterError, Options, check_field_path, echo_text, get_field, type_name
 from inhand_tools.message_types import UnknownMessageType, message_class
 
-__all__ = ['EchoRequest', 'Printer', 'echo_topic', 'wait_for_topic_type']
+__all__ = ['EchoRequest', 'Printer', 'echo_topic', 'topic_class', 'wait_for_publishers']
 
 SEPARATOR = '---'
-TYPE_WAIT_NOTICE = 0.5   # s: say we are waiting for the topic after this long
+WAIT_NOTICE = 0.5   # s: say we are waiting for a publisher after this long
 
 
 @dataclass
@@ -37,28 +32,40 @@ class EchoRequest:
     """What to print (the command's arguments)."""
 
     topic: str                            # relative names resolve in the node's namespace
-    msg_class: object = None              # None: the type the graph shows for the topic
+    msg_class: object = None              # None: the graph's type; else checked against it
     field_path: list = field(default_factory=list)  # parse_field_path(field_text)
     field_text: str = ''                  # as given with --field
-    count: int | None = None              # stop after this many; None: until stopped
+    count: int | None = None              # stop after printing this many; None: until stopped
+    accept: Callable[[object], bool] | None = None  # --filter (compile_filter); None: all
     reliability: str | None = None        # 'reliable' / 'best_effort'; None: as offered
-    transient_local: bool = False         # ask for it; False: as offered
+    durability: str | None = None         # 'transient_local' / 'volatile'; None: as offered
+    depth: int = 100                      # the subscription's history depth
     text: Options = field(default_factory=Options)
 
 
 class Printer:
-    """The subscription callback: writes each message (or its field) to stdout."""
+    """The subscription callback: writes each message (or its field) that passes the
+    filter to stdout. A filter that fails stops the session and is kept in ``error``."""
 
     def __init__(self, request: EchoRequest, field_type: str, stop):
         self.request, self.field_type, self.stop = request, field_type, stop
         self.printed = 0
         self.closed = False
+        self.error: FilterError | None = None
 
     def __call__(self, msg) -> None:
         count = self.request.count
-        if self.closed or (count and self.printed >= count):
+        if self.closed or self.error or (count and self.printed >= count):
             return
-        text, single = self._text(msg)
+        try:
+            shown = self._text(msg)
+        except FilterError as error:
+            self.error = error
+            self.stop.set()
+            return
+        if shown is None:
+            return
+        text, single = shown
         try:
             sys.stdout.write(text + '\n' if single else f'{text}\n{SEPARATOR}\n')
             sys.stdout.flush()
@@ -71,37 +78,49 @@ class Printer:
         if count and self.printed >= count:
             self.stop.set()
 
-    def _text(self, msg) -> tuple[str, bool]:
-        """The text to print and whether it is a single value (one line, no separator)."""
+    def _text(self, msg) -> tuple[str, bool] | None:
+        """The text to print and whether it is a line of its own (no separator); None if
+        the filter leaves the message out."""
         request = self.request
-        if not request.field_path:
-            return format_message(msg, request.text), False
         try:
             value = get_field(msg, request.field_path)
         except IndexError as error:
             return f'<{request.field_text}: {error}>', False
-        text = value if isinstance(value, str) else \
-            format_message(value, request.text, self.field_type)
-        return text, value is not None and is_scalar(value)
+        if request.accept is not None and not request.accept(value):
+            return None
+        return echo_text(value, request.text, self.field_type)
 
 
-def wait_for_topic_type(node, topic: str, stop) -> str | None:
-    """The topic's type from the graph, waiting for it to appear (None if stopped)."""
-    from inhand_tools.ros_session import graph_types
+def wait_for_publishers(node, topic: str, stop) -> list:
+    """The publishers of ``topic`` (``node.get_publishers_info_by_topic``), waiting for one
+    to appear; [] if stopped first."""
     told = False
     began = time.monotonic()
     while not stop.is_set():
-        types = graph_types(node).get(topic)
-        if types:
-            if len(set(types)) > 1:
-                raise UnknownMessageType(f'{topic} has several types on the graph: '
-                                         f'{", ".join(sorted(set(types)))}; choose with --type')
-            return types[0]
-        if not told and time.monotonic() - began > TYPE_WAIT_NOTICE:
-            print(f'topic_echo: waiting for {topic} to appear', file=sys.stderr, flush=True)
+        infos = node.get_publishers_info_by_topic(topic)
+        if infos:
+            return infos
+        if not told and time.monotonic() - began > WAIT_NOTICE:
+            print(f'topic_echo: waiting for a publisher on {topic}', file=sys.stderr, flush=True)
             told = True
         stop.wait(0.05)
-    return None
+    return []
+
+
+def topic_class(topic: str, graph_types: list[str], given=None):
+    """The message class to subscribe with: the publishers' type, or ``given`` (a class)
+    if they publish it. UnknownMessageType if they publish several types and none is
+    given, another type than the one given, or one without a Python class here."""
+    types = sorted(set(graph_types))
+    if given is not None:
+        if type_name(given) in types:
+            return given
+        raise UnknownMessageType(f'{topic} is published as {" and ".join(types)}, '
+                                 f'not {type_name(given)}')
+    if len(types) > 1:
+        raise UnknownMessageType(f'{topic} is published with several types: '
+                                 f'{", ".join(types)}; name one as MESSAGE_TYPE')
+    return message_class(types[0])
 
 
 def echo_topic(ros_args: list[str], request: EchoRequest) -> int:
@@ -109,9 +128,10 @@ def echo_topic(ros_args: list[str], request: EchoRequest) -> int:
     command line, for ``--ros-args``) until SIGINT/SIGTERM or ``request.count``; the
     number printed.
 
-    InvalidTopicName, UnknownMessageType (the graph's type) or FieldPathError (the field
-    does not fit the graph's type) before anything is printed; KeyboardInterrupt on a
-    second signal.
+    InvalidTopicName, UnknownMessageType (the graph's type, or one that differs from the
+    type asked for) or FieldPathError (the field does not fit the graph's type) before
+    anything is printed; FilterError if the filter fails on a message; KeyboardInterrupt
+    on a second signal.
     """
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -123,16 +143,16 @@ def echo_topic(ros_args: list[str], request: EchoRequest) -> int:
         executor = None
         try:
             topic = resolve_topic(node, request.topic)
-            cls = request.msg_class
-            if cls is None:
-                msgtype = wait_for_topic_type(node, topic, session.stop)
-                if msgtype is None:
-                    return 0
-                cls = message_class(msgtype)
+            publishers = wait_for_publishers(node, topic, session.stop)
+            if not publishers:
+                return 0
+            cls = topic_class(topic, [p.topic_type for p in publishers], request.msg_class)
             field_type = check_field_path(cls, request.field_path, request.field_text) \
                 if request.field_path else ''
-            qos = matching_qos(node.get_publishers_info_by_topic(topic), request.reliability,
-                               True if request.transient_local else None, depth=100)
+            durability = None if request.durability is None else \
+                request.durability == 'transient_local'
+            qos = matching_qos([p for p in publishers if p.topic_type == type_name(cls)],
+                               request.reliability, durability, depth=request.depth)
             print(f'topic_echo: {topic} ({type_name(cls)}; {describe_qos(qos)})',
                   file=sys.stderr, flush=True)
             printer = Printer(request, field_type, session.stop)
@@ -141,6 +161,8 @@ def echo_topic(ros_args: list[str], request: EchoRequest) -> int:
             executor.add_node(node)
             while not session.stop.is_set():
                 executor.spin_once(timeout_sec=0.05)
+            if printer.error is not None:
+                raise printer.error
             return printer.printed
         finally:
             if executor is not None:

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import serial
 
+from inhand_common.health import ERROR, WARN, Health, IntervalCounts, Problems
 from polhemus_liberty.device_pose import record_to_pose
 from polhemus_liberty.driver_config import DriverConfig
 from polhemus_liberty.frames import Frame, FrameAssembler
@@ -50,7 +51,7 @@ from polhemus_liberty.protocol import (
     make_stream_parser,
 )
 
-__all__ = ['DriverStatus', 'LibertyDriver', 'PoseFrame']
+__all__ = ['LibertyDriver', 'PoseFrame']
 
 # What a vanished or broken port raises: pyserial's own errors, OS errors, and termios
 # errors from flushes on a pty whose other end is gone.
@@ -60,7 +61,6 @@ READ_TIMEOUT = 0.02       # s: how long one read waits; bounds stop and silence 
 SETTLE_AFTER_LIST = 0.1   # s: readers wait this long after setting the output list
 READBACK_TIMEOUT = 0.5    # s: how long to wait for the WhoAmI and station map replies
 
-OK, WARN, ERROR = 0, 1, 2
 
 
 @dataclass
@@ -71,15 +71,6 @@ class PoseFrame:
     frame_count: int | None
     poses: dict[int, tuple[np.ndarray, np.ndarray]]  # station -> (position m, quat xyzw)
     distortion: dict[int, int] = field(default_factory=dict)
-
-
-@dataclass
-class DriverStatus:
-    """A snapshot for diagnostics: level (0 OK, 1 WARN, 2 ERROR), message and values."""
-
-    level: int
-    message: str
-    values: dict[str, str]
 
 
 class LibertyDriver:
@@ -104,7 +95,7 @@ class LibertyDriver:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._port: serial.Serial | None = None
-        self._last_report = (time.monotonic(), 0, 0)
+        self._interval = IntervalCounts(time.monotonic())
         self._warned_missing = False
         self._last_receipt = float('-inf')
 
@@ -333,17 +324,22 @@ class LibertyDriver:
                       invalid_poses=self.invalid_poses)
         return totals
 
-    def status(self) -> DriverStatus:
-        """Level, message and values for diagnostics; rates are since the previous call."""
-        now = time.monotonic()
+    def status(self, now: float | None = None) -> Health:
+        """Level, message and values for diagnostics (see :meth:`report`)."""
+        problems = Problems()
+        ok_message, values = self.report(time.monotonic() if now is None else now, problems)
+        return problems.health(ok_message, values)
+
+    def report(self, now: float, problems: Problems) -> tuple[str, dict[str, object]]:
+        """The OK message and the values for diagnostics, with what is wrong added to
+        ``problems``. Rates and problems are those since the previous call: WARN on dropped
+        or incomplete frames and resyncs in that interval, a slow stream or an over-budget
+        link; ERROR while not streaming."""
         counters = self.counters()
-        then, frames_then, dropped_then = self._last_report
-        elapsed = max(now - then, 1e-6)
-        rate = (counters['frames'] - frames_then) / elapsed
-        new_drops = counters['dropped_frames'] - dropped_then
-        self._last_report = (now, counters['frames'], counters['dropped_frames'])
+        elapsed, new = self._interval.step(now, counters)
+        rate = new['frames'] / elapsed
         detects_drops = 9 in self.config.output_list.codes or 8 in self.config.output_list.codes
-        values = {key: str(value) for key, value in counters.items()}
+        values: dict[str, object] = dict(counters)
         values.update(state=self.state, port=self.config.port, frame_rate_hz=f'{rate:.1f}',
                       expected_rate_hz=str(self.config.frame_rate),
                       drop_detection='frame counter' if 9 in self.config.output_list.codes
@@ -355,14 +351,21 @@ class LibertyDriver:
         for station, level in sorted(self.distortion.items()):
             values[f'distortion_{self.config.stations[station]}'] = str(level)
         if self.state != 'streaming':
-            return DriverStatus(ERROR, f'{self.state}: no data from {self.config.port}', values)
-        if new_drops:
-            return DriverStatus(WARN, f'{new_drops} frame(s) dropped in the last '
-                                      f'{elapsed:.1f} s', values)
-        if self.config.bytes_per_second() > link_bytes_per_second(self.config.baud):
-            return DriverStatus(WARN, 'stream exceeds the serial link budget', values)
-        if rate < 0.9 * self.config.frame_rate:
-            return DriverStatus(WARN, f'frame rate {rate:.0f} Hz below the expected '
-                                      f'{self.config.frame_rate} Hz', values)
-        return DriverStatus(OK, f'streaming at {rate:.0f} Hz', values)
+            problems.add(ERROR, 'not_streaming', f'{self.state}: no data from {self.config.port}')
+        else:
+            interval = f'in the last {elapsed:.1f} s'
+            if new['dropped_frames']:
+                problems.add(WARN, 'dropped', f"{new['dropped_frames']} frame(s) dropped {interval}")
+            if new['incomplete_frames']:
+                problems.add(WARN, 'incomplete', f"{new['incomplete_frames']} incomplete frame(s) "
+                             f'{interval}')
+            if new['resyncs']:
+                problems.add(WARN, 'resyncs', f"{new['resyncs']} resync(s) of a corrupt stream "
+                             f"({new['bytes_dropped']} bytes skipped) {interval}")
+            if self.config.bytes_per_second() > link_bytes_per_second(self.config.baud):
+                problems.add(WARN, 'link_budget', 'stream exceeds the serial link budget')
+            if rate < 0.9 * self.config.frame_rate:
+                problems.add(WARN, 'slow', f'frame rate {rate:.0f} Hz below the expected '
+                             f'{self.config.frame_rate} Hz')
+        return f'streaming at {rate:.0f} Hz', values
 

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from inhand_common.frame_names import frame_name_problem
 from inhand_common.parameters import ParameterError, ParamSpec
 from inhand_common.ros_names import DEFAULT_OBJECT_STATION, TRACKER_FRAME
 from polhemus_liberty.protocol import DEFAULT_OUTPUT_ITEMS, ITEMS, MAX_STATIONS, OutputList
@@ -39,7 +40,7 @@ DRIVER_PARAMETERS = (
               'dropped frames and 11 to report distortion', minimum=0, maximum=max(ITEMS),
               min_length=2),
     ParamSpec('frame_id', TRACKER_FRAME, 'frame_id of the published poses (the '
-              'transmitter frame)'),
+              "transmitter frame; e.g. 'left_hand/polhemus_source' for one of two trackers)"),
     ParamSpec('latency_offset', 0.0, 'Seconds subtracted from the host receipt time to '
               'stamp a frame (device and transport latency)', minimum=0.0, maximum=1.0),
     ParamSpec('silence_timeout', 2.0, 'Seconds without a record before the reset sequence '
@@ -90,9 +91,10 @@ class DriverConfig:
         except ValueError as error:
             problems.append(f"parameter 'output_items': {error}")
             output_list = None
-        if not values['frame_id'] or not _NAME.match(values['frame_id'].lstrip('/')):
-            problems.append(f"parameter 'frame_id' = {values['frame_id']!r} is not a valid "
-                            'frame name')
+        # tf2 takes no leading slash; one given (ROS 1 habit) is dropped.
+        frame_problem = frame_name_problem('frame_id', values['frame_id'].lstrip('/'))
+        if frame_problem is not None:
+            problems.append(frame_problem)
         if not values['port']:
             problems.append("parameter 'port' must not be empty")
         if problems:
@@ -101,7 +103,7 @@ class DriverConfig:
             port=values['port'], baud=values['baud'], stations=dict(zip(stations, names)),
             units=values['units'], frame_rate=values['frame_rate'],
             hemisphere=tuple(values['hemisphere']), binary=values['output_format'] == 'binary',
-            output_list=output_list, frame_id=values['frame_id'],
+            output_list=output_list, frame_id=values['frame_id'].lstrip('/'),
             latency_offset=values['latency_offset'], silence_timeout=values['silence_timeout'],
             reconnect_period=values['reconnect_period'])
 

@@ -26,6 +26,12 @@ latched): a save colours the occupied cells with the latest of it (``red green b
 textured`` in the PLYs, ``rgb``/``textured`` in the NPZ); cells occupied since it came are
 saved untextured.
 
+Frames (ros_transforms.py): ``object_centric`` in ``object`` (origin at the centre of mass)
+with each map publication, on ``transforms`` and, on a full ROS install, ``/tf``.
+``diagnostics`` about once a second (node_health.py): state, rates, counters, cells, and
+points falling outside the workspace, a warning in the log too. The map is published on
+a steady-clock timer, so ``use_sim_time`` changes the stamps, not the mapping.
+
 The map holds each finger's newest samples back until the next 1/15 s shows how fast the
 finger was moving (dwell.py). They are applied when the next points come, before a save,
 and when no points have come for two publish periods (the end of a replay, a pause), so
@@ -33,6 +39,8 @@ the map published after a stream ends holds all of it.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from geometry_msgs.msg import PointStamped
@@ -42,16 +50,20 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
+from inhand_common.health import Problems
 from inhand_common.node_runner import run_node
 from inhand_common.packed_rgb import colours_of_rgb
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
-from inhand_common.ros_names import MAP_FRAME
+from inhand_common.ros_clock import steady_timer
+from inhand_common.ros_diagnostics import NodeDiagnostics
 from inhand_common.ros_parameters import declare_parameters
+from inhand_common.ros_transforms import Transform, TransformPublisher
 from inhand_mapping.cloud_layouts import unpack_registered, vision_log_odds
 from inhand_mapping.global_map import GlobalMap
 from inhand_mapping.map_io import GridColours
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, OccupancyConfig
+from inhand_mapping.node_health import OccupancyActivity, OccupancyHealth
 from inhand_mapping.qos import DATA_QOS, LATCHED_QOS
 
 MAP_QOS = LATCHED_QOS
@@ -71,9 +83,9 @@ class OccupancyNode(Node):
         self._idle_ticks = 0   # publish periods since points last came
         self._latest_stamp = None
         self._colours: GridColours | None = None   # the latest occupancy/textured, by cell
-        self._received = 0           # registered points received, and in how many messages
-        self._messages = 0
-        self.create_subscription(
+        self.frames = config.frames
+        self.activity = OccupancyActivity()
+        self._points_sub = self.create_subscription(
             PointCloud2, 'registration/points', self._on_points, POINTS_QOS,
             event_callbacks=SubscriptionEventCallbacks(matched=self._on_points_matched))
         self.create_subscription(PointCloud2, 'occupancy/textured', self._on_textured, MAP_QOS)
@@ -87,11 +99,16 @@ class OccupancyNode(Node):
         self._com = self.create_publisher(PointStamped, 'occupancy/center_of_mass', MAP_QOS)
         self.create_service(Trigger, 'occupancy/reset', self._on_reset)
         self.create_service(Trigger, 'occupancy/save', self._on_save)
-        self.create_timer(1.0 / self.config.publish_rate, self._publish)
+        self.transforms = TransformPublisher(self)
+        steady_timer(self, 1.0 / self.config.publish_rate, self._publish)
         spec, model = self.grid.spec, self.grid.model
+        self.health = OccupancyHealth(
+            time.monotonic(), f'{spec.size:g} m cube centred at {list(spec.centre)}')
+        self.diagnostics = NodeDiagnostics(self, 'occupancy map', self._report,
+                                           data_count=lambda: self.activity.messages)
         self.get_logger().info(
             f'map: {spec.cells_per_axis}^3 cells of {spec.resolution * 1000:g} mm, '
-            f'{spec.size:g} m cube centred at {list(spec.centre)} in {MAP_FRAME}; '
+            f'{spec.size:g} m cube centred at {list(spec.centre)} in {self.frames.map_frame}; '
             f'{model.touch_model} touch model, P(Z|not O) {model.p_z_given_not_occupied:g}, '
             f'visit gap {model.visit_gap:g} s; fusion {config.fusion}')
 
@@ -103,8 +120,8 @@ class OccupancyNode(Node):
 
     def _on_points(self, msg: PointCloud2) -> None:
         points, times, fingers = unpack_registered(from_point_cloud2(msg))
-        self._received += len(points)
-        self._messages += 1
+        self.activity.received += len(points)
+        self.activity.messages += 1
         self._idle_ticks = 0
         if len(points):
             self.grid.integrate(points, times, fingers)
@@ -121,6 +138,7 @@ class OccupancyNode(Node):
             self.get_logger().warning(
                 f'occupancy/textured: {int((~inside).sum())} of {len(centres)} cells outside '
                 'this map (another grid?); they are not saved')
+        self.activity.textured = True
         self._colours = GridColours.from_cells(
             self.grid.spec, centres[inside], colours_of_rgb(cloud['rgb'][inside]),
             cloud['textured'][inside].astype(bool))
@@ -134,6 +152,7 @@ class OccupancyNode(Node):
                 'resolution); they are not fused')
         first = self.map.vision is None
         self.map.set_vision(log_odds)
+        self.activity.vision_cells = int(msg.width)
         self._changed = True
         if first:
             self.get_logger().info(f'vision map: {msg.width} cells; publishing the '
@@ -149,22 +168,27 @@ class OccupancyNode(Node):
         stamp = self._latest_stamp or self.get_clock().now().to_msg()
         grid = self.map.grid()
         products = self.products(grid)
+        map_frame = self.frames.map_frame
         if self._touch_cloud is not None:
             touch, _ = self.products(self.grid).cells()
-            self._touch_cloud.publish(serialize_point_cloud2(touch, MAP_FRAME, stamp.sec,
+            self._touch_cloud.publish(serialize_point_cloud2(touch, map_frame, stamp.sec,
                                                              stamp.nanosec))
         touched, occupied = products.cells()
         # Serialized here and published as bytes: a full map is 8 MB (see point_cloud.py).
-        self._cloud.publish(serialize_point_cloud2(touched, MAP_FRAME, stamp.sec, stamp.nanosec))
-        self._occupied.publish(serialize_point_cloud2(occupied, MAP_FRAME, stamp.sec,
+        self._cloud.publish(serialize_point_cloud2(touched, map_frame, stamp.sec, stamp.nanosec))
+        self._occupied.publish(serialize_point_cloud2(occupied, map_frame, stamp.sec,
                                                       stamp.nanosec))
+        self.activity.publications += 1
+        self.activity.touched_cells, self.activity.occupied_cells = len(touched), len(occupied)
         frame = products.object_frame()
         if frame is not None:
             msg = PointStamped()
-            msg.header.frame_id = MAP_FRAME
+            msg.header.frame_id = map_frame
             msg.header.stamp = stamp
             msg.point.x, msg.point.y, msg.point.z = (float(v) for v in frame.centre_of_mass)
             self._com.publish(msg)
+            self.transforms.send([Transform(stamp, map_frame, self.frames.object_centric_frame,
+                                            frame.centre_of_mass, (0.0, 0.0, 0.0, 1.0))])
 
     def _on_reset(self, _request, response):
         self.grid.reset()
@@ -192,7 +216,7 @@ class OccupancyNode(Node):
             colours, textured = self._colours.at(grid.spec, centres)
         try:
             paths = save_map(grid, self.config.output_dir, self.config.map_name,
-                             self.config.occupied_threshold, MAP_FRAME,
+                             self.config.occupied_threshold, self.frames.map_frame,
                              extra={'node': self.get_fully_qualified_name(),
                                     'fusion': self.config.fusion if self.map.fusing
                                     else 'none'},
@@ -209,13 +233,19 @@ class OccupancyNode(Node):
         self._publish()
         return response
 
+    def _report(self, now: float, problems: Problems) -> tuple[str, dict[str, object]]:
+        self.activity.pending = self.grid.pending
+        self.activity.publishers = self._points_sub.get_publisher_count()
+        return self.health.report(now, self.grid.counts, self.activity, problems)
+
     def _on_points_matched(self, status) -> None:
         self.get_logger().info(f'registration/points: {status.current_count} publisher(s)')
 
     def close(self) -> None:
         counts = self.grid.counts
         self.get_logger().info(
-            f'stopped: received {self._received} points in {self._messages} messages; '
+            f'stopped: received {self.activity.received} points in {self.activity.messages} '
+            'messages; '
             f'{counts.integrated} points integrated, {counts.outside} outside the workspace, '
             f'{counts.invalid} invalid, {self.grid.pending} not yet applied')
 

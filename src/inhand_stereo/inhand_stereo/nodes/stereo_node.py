@@ -36,9 +36,10 @@ from stereo_msgs.msg import DisparityImage
 from inhand_common.node_runner import run_node
 from inhand_common.packed_rgb import rgb_of_colours
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
-from inhand_common.ros_names import MAP_FRAME, STEREO_FRAME, station_pose_topic
+from inhand_common.ros_names import station_pose_topic
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
+from inhand_common.ros_transforms import Transform, TransformPublisher
 from inhand_mapping.cloud_layouts import textured_cells, vision_cells
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 from inhand_mapping.qos import LATCHED_QOS
@@ -88,6 +89,12 @@ class StereoNode(Node):
         self._points = self.create_publisher(PointCloud2, 'stereo/points', LATCHED_QOS)
         self._textured = self.create_publisher(PointCloud2, 'occupancy/textured', LATCHED_QOS)
         self._vision = self.create_publisher(PointCloud2, 'vision/cloud', LATCHED_QOS)
+        # The camera on the tracker (camera_pose, from calibrate_camera_tracker), latched.
+        self.frames = config.frames
+        self.transforms = TransformPublisher(self)
+        self.transforms.send_static([Transform(
+            self.get_clock().now().to_msg(), self.frames.tracker_frame, self.frames.camera_frame,
+            config.camera_pose[:3], config.camera_pose[3:])])
         matcher = self.pipeline.matcher.config
         self.get_logger().info(
             f"stereo: {'semi-global' if matcher.stereo_algorithm else 'block'} matching, "
@@ -152,7 +159,7 @@ class StereoNode(Node):
                 cloud[name] = points[:, axis]
             cloud['rgb'] = rgb_of_colours(shot.colours)
             stamp = stamp_from_seconds(shot.stamp_ns * 1e-9)
-            self._points.publish(serialize_point_cloud2(cloud, MAP_FRAME, stamp.sec,
+            self._points.publish(serialize_point_cloud2(cloud, self.frames.map_frame, stamp.sec,
                                                         stamp.nanosec))
             self._publish_texture()
             self._publish_vision(outcome, stamp)
@@ -162,7 +169,7 @@ class StereoNode(Node):
         result, rectifier = shot.disparity, shot.rectifier
         msg = DisparityImage()
         msg.header.stamp = header.stamp
-        msg.header.frame_id = STEREO_FRAME
+        msg.header.frame_id = self.frames.camera_frame
         height, width = result.disparity.shape
         msg.image.header = msg.header
         msg.image.height, msg.image.width = height, width
@@ -183,7 +190,7 @@ class StereoNode(Node):
         observation, segmentation = placed.integrate_into(self.vision, self.config.camera_pose,
                                                           self.config.segmentation)
         cells = vision_cells(self.vision.spec, self.vision.log_odds)
-        self._vision.publish(serialize_point_cloud2(cells, MAP_FRAME, stamp.sec, stamp.nanosec))
+        self._vision.publish(serialize_point_cloud2(cells, self.frames.map_frame, stamp.sec, stamp.nanosec))
         self.get_logger().info(
             f'vision map: pair {self.vision.exposures} updated {len(observation.cells)} cells '
             f'from {int(segmentation.keep.sum())} object pixels (support plane '
@@ -199,7 +206,7 @@ class StereoNode(Node):
         texture = self.placed.texture(centres, self.config.resolution, self.config.camera_pose)
         cloud = textured_cells(cells, texture.colours, texture.textured)
         stamp = stamp_from_seconds(self.placed.shot.stamp_ns * 1e-9)
-        self._textured.publish(serialize_point_cloud2(cloud, MAP_FRAME, stamp.sec,
+        self._textured.publish(serialize_point_cloud2(cloud, self.frames.map_frame, stamp.sec,
                                                       stamp.nanosec))
         self.get_logger().debug(
             f'textured {int(texture.textured.sum())} of {len(centres)} occupied cells in '

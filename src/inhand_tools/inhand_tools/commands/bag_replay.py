@@ -2,7 +2,8 @@
 fast as the subscribers take them.
 
     bag_replay BAG [--rate FACTOR | --fast] [--loop] [--start-offset SECONDS]
-                   [--topics T [T ...]] [--wait-subscribers SECONDS] [--quiet]
+                   [--topics T [T ...]] [--wait-subscribers SECONDS] [--clock [HZ]]
+                   [--quiet]
                    [--ros-args ...]
 
 Each message goes out as the raw CDR bytes the bag holds (no deserialisation), on the
@@ -18,6 +19,11 @@ reaches it (the topics still without one are named, then the replay starts).
 the end until Ctrl-C. A progress line goes to stderr (redrawn on a terminal, every 10%
 otherwise) and a summary to stdout at the end. A truncated MCAP bag is replayed up to
 its cut (read record by record, as ``build_map`` does) and said so.
+
+``--clock [HZ]`` publishes the bag's time on ``/clock`` (rosgraph_msgs/Clock, HZ times a
+second, default 40, as ``ros2 bag play --clock``), so nodes run with ``-p
+use_sim_time:=true`` live in the bag's time: it runs at ``--rate`` from the first message,
+follows the messages in ``--fast``, and holds before and after them.
 
 ``--fast``: as fast as the subscribers keep up, with nothing lost. How:
 
@@ -71,6 +77,7 @@ from inhand_tools.bag_replayer import ReplayOptions, plan_streams, replay_bag, r
 
 EXIT_DAMAGED = 1
 EXIT_REFUSED = 2
+DEFAULT_CLOCK_HZ = 40.0   # Hz, as ros2 bag play --clock
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -90,6 +97,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help='before starting, wait up to SECONDS for a subscriber on every '
                         'topic, so their first messages are not lost (default 10; then the '
                         'topics without one are named and the replay starts; 0: at once)')
+    parser.add_argument('--clock', type=positive_float, nargs='?', const=DEFAULT_CLOCK_HZ,
+                        metavar='HZ', help="publish the bag's time on /clock, HZ times a "
+                        f'second (default {DEFAULT_CLOCK_HZ:g}), for nodes with use_sim_time')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
     return parser.parse_args(argv)
 
@@ -99,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     full = list(sys.argv if argv is None else ['bag_replay', *argv])
     args = parse_args(remove_ros_args(full)[1:])
     options = ReplayOptions(rate=args.rate, fast=args.fast, loop=args.loop,
-                            wait_subscribers=args.wait_subscribers, quiet=args.quiet)
+                            wait_subscribers=args.wait_subscribers, quiet=args.quiet,
+                            clock_hz=args.clock)
     try:
         with BagSource(args.bag) as source:
             streams = plan_streams(source, args.topics)

@@ -27,7 +27,6 @@ import numpy as np
 from inhand_common.blas_threads import single_threaded_blas
 from inhand_common.cli_types import command_parser
 from inhand_common.parameters import ParameterError
-from inhand_common.ros_names import MAP_FRAME
 from inhand_mapping.bag_mapping import build_map_from_bag
 from inhand_mapping.global_map import GlobalMap
 from inhand_mapping.map_products import MapProducts, save_map
@@ -100,7 +99,7 @@ def main(argv=None) -> int:
     global_map, texture, stereo_notes = _with_vision(args.bag, stereo, occupancy, touch)
     grid = global_map.grid()
     name = args.name or args.bag.name.rsplit('.', 1)[0] or 'map'
-    paths = save_map(grid, args.output_dir, name, threshold, MAP_FRAME,
+    paths = save_map(grid, args.output_dir, name, threshold, occupancy.frames.map_frame,
                      extra={'bag': str(args.bag), 'truncated': report['truncated'],
                             'fusion': occupancy.fusion if global_map.fusing else 'none'},
                      colours=None if texture is None else texture.colours,

@@ -8,12 +8,12 @@ thread so a slow subscriber never stalls the port.
 
 from __future__ import annotations
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from inhand_common.node_runner import run_node
+from inhand_common.ros_diagnostics import NodeDiagnostics
 from inhand_common.ros_names import station_pose_topic
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
@@ -31,10 +31,11 @@ class LibertyDriverNode(Node):
         self._pose_publishers = {
             station: self.create_publisher(PoseStamped, station_pose_topic(name), POSE_QOS)
             for station, name in self.config.stations.items()}
-        self._diagnostics = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
-        self._status_name = f'{self.get_name()}: Polhemus Liberty on {self.config.port}'
         self.driver = LibertyDriver(self.config, self._publish_frame, log=self.get_logger())
-        self.create_timer(1.0, self._publish_diagnostics)
+        # Status named after the node, and logged the moment a fault shows (resyncs, drops).
+        self.diagnostics = NodeDiagnostics(
+            self, f'Polhemus Liberty on {self.config.port}', self.driver.report,
+            name=f'{self.get_fully_qualified_name()}: Polhemus Liberty on {self.config.port}')
         self.driver.start()
 
     def _publish_frame(self, frame: PoseFrame) -> None:
@@ -48,16 +49,6 @@ class LibertyDriverNode(Node):
             p.x, p.y, p.z = float(position[0]), float(position[1]), float(position[2])
             q.x, q.y, q.z, q.w = (float(v) for v in quaternion)
             self._pose_publishers[station].publish(msg)
-
-    def _publish_diagnostics(self) -> None:
-        status = self.driver.status()
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [DiagnosticStatus(
-            level=bytes([status.level]), name=self._status_name, message=status.message,
-            hardware_id=self.driver.whoami or self.config.port,
-            values=[KeyValue(key=k, value=v) for k, v in status.values.items()])]
-        self._diagnostics.publish(msg)
 
     def close(self) -> None:
         """Stop continuous output and close the port (called on Ctrl-C / SIGTERM)."""
