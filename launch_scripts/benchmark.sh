@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|latency|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -23,6 +23,9 @@
 #                      per session and a summary against the targets
 #                      (test/benchmarks/bench_quality.py: --quick, --objects, --speeds, --rates,
 #                      --modes, --duration, --jobs, --set NAME=VALUE, --keep DIR)
+#   latency            live-view latency: poses published at 240 Hz x 4 in real time ->
+#                      the cell in occupancy/updates, p50/p95 (test/benchmarks/
+#                      bench_live_latency.py: --duration S, --seed N)
 #   all                every benchmark in turn, each with the same options
 # Examples:
 #   bash launch_scripts/benchmark.sh --seconds 20
@@ -39,8 +42,9 @@ declare -A BENCHMARKS=(
   [stereo-bags]=bench_stereo_bags.py
   [texture]=bench_texture.py
   [quality]=bench_quality.py
+  [latency]=bench_live_latency.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags texture quality)
+ORDER=(liberty mapping replay stereo stereo-bags texture quality latency)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -228,3 +228,35 @@ def test_the_path_model_refuses_neighbourhood_27_by_name():
         load_parameters(None, {'touch_model': 'path', 'neighbourhood': 27})
     with pytest.raises(ValueError, match='neighbourhood 27'):
         SensorModel(touch_model='path', neighbourhood=27)
+
+
+def test_live_updates_show_the_fingertip_cells_at_once_then_their_evidence():
+    """occupancy/updates (map_updates.py): the cells the finger is in now come at once,
+    provisional with one touch's probability, before the look-ahead applies their
+    evidence; the next update after that carries their real value; nothing changed,
+    nothing sent."""
+    from inhand_mapping.map_updates import MapUpdates
+    grid = OccupancyGrid(GridSpec(), PATH)
+    updates = MapUpdates(grid.spec, PATH)
+    points, times = stroke(START, END, 0.05, 240)     # 1 s, 5 cm/s
+    first = slice(0, 24)                              # 0.1 s: nothing settled yet
+    grid.integrate(points[first], times[first], np.zeros(24, dtype=np.int64))
+    held = grid.held_points()
+    assert len(held) == 24 and np.allclose(held, points[first])
+    cells = updates.changes(grid.log_odds, grid.hits, held)
+    assert len(cells) >= 1 and cells['provisional'].all()
+    assert np.allclose(cells['intensity'], ONE_TOUCH, atol=1e-6)
+    assert np.all(cells['x'] < 0.01)                  # where the finger is: the first cells
+    assert len(updates.changes(grid.log_odds, grid.hits, grid.held_points())) == 0
+    grid.integrate(points[24:], times[24:], np.zeros(len(times) - 24, dtype=np.int64))
+    grid.flush()
+    assert len(grid.held_points()) == 0
+    cells = updates.changes(grid.log_odds, grid.hits, grid.held_points())
+    assert not cells['provisional'].any()
+    probabilities = grid.probabilities()
+    ijk = grid.spec.cell_indices(np.column_stack([cells['x'], cells['y'], cells['z']]))
+    assert np.allclose(cells['intensity'], probabilities[tuple(ijk.T)], atol=1e-6)
+    assert set(map(tuple, ijk)) == set(map(tuple, np.argwhere(grid.touched_mask())))
+    grid.reset()                                      # cleared: every cell back to the prior
+    cells = updates.changes(grid.log_odds, grid.hits, grid.held_points())
+    assert len(cells) == len(ijk) and np.allclose(cells['intensity'], 0.5)

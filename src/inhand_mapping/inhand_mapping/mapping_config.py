@@ -93,6 +93,9 @@ OCCUPANCY_PARAMETERS = (
               '(occupancy/occupied, centre of mass, PLY)', minimum=0.5, maximum=0.999),
     ParamSpec('publish_rate', 2.0, 'Map publications per second (only when it changed)',
               minimum=0.01, maximum=100.0),
+    ParamSpec('update_rate', 20.0, 'occupancy/updates per second: the cells whose '
+              'probability changed and the cells the fingertips are in now (provisional), '
+              'for live views; 0: off', minimum=0.0, maximum=100.0),
     ParamSpec('fusion', 'none', 'Global map from the local maps (fusion.py): none (touch '
               'only), product (eq. 9) or entropy (eqs. 10-12) with the vision map of '
               'vision/cloud', choices=FUSIONS),
@@ -170,6 +173,7 @@ class OccupancyConfig:
     fusion: str = 'none'
     entropy_radius: int = 0
     entropy_pooling: str = 'linear'
+    update_rate: float = 20.0       # Hz, occupancy/updates; 0: off
     frames: FrameNames = field(default_factory=FrameNames)
 
     @classmethod
@@ -204,6 +208,7 @@ class OccupancyConfig:
         return cls(grid=grid, model=model,
                    occupied_threshold=float(values['occupied_threshold']),
                    publish_rate=float(values['publish_rate']),
+                   update_rate=float(values['update_rate']),
                    output_dir=Path(values['output_dir']), map_name=values['map_name'],
                    fusion=values['fusion'], entropy_radius=int(values['entropy_radius']),
                    entropy_pooling=values['entropy_pooling'], frames=frames)

@@ -288,6 +288,13 @@ class OccupancyGrid:
             return self._paths.pending
         return 0 if self._dwell is None else self._dwell.pending
 
+    def held_points(self) -> Points:
+        """(M, 3) positions given to ``integrate`` whose evidence the path model has not
+        applied yet (empty for the samples model, whose hold is one sample per finger)."""
+        if self._paths is None:
+            return np.empty((0, 3))
+        return self._paths.held_points()
+
     def _integrate_path(self, positions: Points, stamps: Times | None,
                         finger_ids: FingerIds) -> IntegrationCounts:
         """The path model (touch_paths.py): samples counted when given, paths walked as

@@ -131,6 +131,16 @@ class TouchPaths:
         """Samples taken whose path has not been walked to yet."""
         return int((self.tracks.held - self.tracks.walked).sum())
 
+    def held_points(self) -> Points:
+        """(M, 3) positions of the samples taken whose path is not walked yet: where the
+        fingertips are now, before their speeds settle (a live view shows these cells at
+        once; their evidence comes a look-ahead later)."""
+        tracks = self.tracks
+        slot = np.arange(tracks.t.shape[1])
+        held = (slot >= tracks.walked[:, None]) & (slot < tracks.held[:, None])
+        points: Points = tracks.p[held]
+        return points
+
     @property
     def overwritten_visits(self) -> int:
         """Visits dropped within their gap because a finger's ring of visits was full."""

@@ -10,6 +10,10 @@ gets the latest map):
 * ``occupancy/center_of_mass`` (PointStamped, frame ``object``): origin of the
   ``object_centric`` frame.
 
+``occupancy/updates`` (PointCloud2, reliable, volatile), ``update_rate`` times a second
+when anything changed: the cells whose probability changed and the cells the fingertips
+are in now, flagged provisional (map_updates.py), for live views.
+
 Services (std_srvs/Trigger): ``occupancy/reset`` clears the map; ``occupancy/save``
 writes ``<output_dir>/<map_name>.npz`` (whole grid) and ``.ply`` (occupied cells)
 atomically and answers with the paths.
@@ -62,9 +66,10 @@ from inhand_mapping.cloud_layouts import unpack_registered, vision_log_odds
 from inhand_mapping.global_map import GlobalMap
 from inhand_mapping.map_io import GridColours
 from inhand_mapping.map_products import MapProducts, save_map
+from inhand_mapping.map_updates import MapUpdates
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, OccupancyConfig
 from inhand_mapping.node_health import OccupancyActivity, OccupancyHealth
-from inhand_mapping.qos import DATA_QOS, LATCHED_QOS
+from inhand_mapping.qos import DATA_QOS, LATCHED_QOS, UPDATES_QOS
 
 MAP_QOS = LATCHED_QOS
 POINTS_QOS = DATA_QOS
@@ -101,6 +106,12 @@ class OccupancyNode(Node):
         self.create_service(Trigger, 'occupancy/save', self._on_save)
         self.transforms = TransformPublisher(self)
         steady_timer(self, 1.0 / self.config.publish_rate, self._publish)
+        self._updates = None
+        if config.update_rate > 0:
+            self._updates = MapUpdates(config.grid, config.model)
+            self._updates_pub = self.create_publisher(PointCloud2, 'occupancy/updates',
+                                                      UPDATES_QOS)
+            steady_timer(self, 1.0 / config.update_rate, self._publish_updates)
         spec, model = self.grid.spec, self.grid.model
         self.health = OccupancyHealth(
             time.monotonic(), f'{spec.size:g} m cube centred at {list(spec.centre)}')
@@ -189,6 +200,16 @@ class OccupancyNode(Node):
             self._com.publish(msg)
             self.transforms.send([Transform(stamp, map_frame, self.frames.object_centric_frame,
                                             frame.centre_of_mass, (0.0, 0.0, 0.0, 1.0))])
+
+    def _publish_updates(self) -> None:
+        if self._updates_pub.get_subscription_count() == 0:
+            return   # nobody watches: the comparison over the grid is not worth it
+        grid = self.map.grid()
+        cells = self._updates.changes(grid.log_odds, grid.hits, self.grid.held_points())
+        if len(cells):
+            stamp = self._latest_stamp or self.get_clock().now().to_msg()
+            self._updates_pub.publish(serialize_point_cloud2(cells, self.frames.map_frame,
+                                                             stamp.sec, stamp.nanosec))
 
     def _on_reset(self, _request, response):
         self.grid.reset()
