@@ -313,3 +313,31 @@ def test_frames_and_diagnostics_of_a_hand_whose_object_sensor_falls_silent():
     assert np.allclose([t.x, t.y, t.z], position, atol=1e-9)
 
 
+
+
+def test_a_timed_replay_started_before_the_nodes_loses_nothing(tmp_path):
+    """bag_replay used to wait 1 s for subscribers and then start: a replay started two
+    seconds before the nodes lost the start. It waits (up to 10 s) until every topic has
+    its subscriber, as the launchers do."""
+    frames, _ = sphere_session(seconds=2.0, rate=120.0, surface_points=12, moving=False)
+    fingers = [(t, {k: v for k, v in frame.items() if k != 'object'}) for t, frame in frames]
+    bag = write_pose_bag(tmp_path / 'static', fingers)
+    config = str(WORKSPACE / 'config' / 'mapping_static.yaml')
+    ros = ['--ros-args', '--params-file', config]
+    listener = GraphListener()
+    try:
+        with running(['bag_replay', str(bag), '--quiet']) as replay:
+            time.sleep(2.0)
+            with running(['registration_node', *ros]), \
+                    running(['occupancy_node', *ros, '-p', f'output_dir:={tmp_path}']):
+                assert replay.popen.wait(30) == 0, replay.output()
+                everything = str(3 * len(frames))
+                listener.wait_for(lambda: any(s[4].get('points_received') == everything
+                                              for s in listener.of('occupancy_node')),
+                                  10, 'every point in the occupancy diagnostics')
+                assert call_trigger('occupancy/save').success
+    finally:
+        listener.close()
+    assert 'waiting for a subscriber' in replay.output()
+    grid, _ = load_npz(tmp_path / 'map.npz')
+    assert grid.hits.sum() == 3 * len(frames)
