@@ -9,15 +9,18 @@ keeps up (the replay itself is over in well under a second), saves the map (with
 colours of its occupied cells), renders the pictures with the rig's config/stereo.yaml
 (so the stereo points, the textured map and their registration are among them) and prints
 the metrics. Everything lands in output/demo/; the last line names the textured map's
-picture.
+picture. --view also starts live_view (the page at http://127.0.0.1:8080/, Foxglove at
+ws://127.0.0.1:8765) and keeps the graph up after the save until Ctrl-C.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from inhand_tools.launching import add_view_arguments
 from replay_bag import WORKSPACE, replay
 
 BAG = WORKSPACE / 'bags' / 'cat_moving'
@@ -25,7 +28,10 @@ OUTPUT = WORKSPACE / 'output' / 'demo'
 STEREO_PICTURES = ('stereo_points.png', 'textured_map.png', 'texture_registration.png')
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    add_view_arguments(parser)
+    args = parser.parse_args(argv)
     if not BAG.exists():
         print(f'demo: {BAG} is missing; regenerate the bundled bags with '
               'bash launch_scripts/make_bags.sh', file=sys.stderr)
@@ -33,7 +39,7 @@ def main() -> int:
     for name in STEREO_PICTURES:  # an earlier run's: only this run's are shown
         (OUTPUT / name).unlink(missing_ok=True)
     code = replay(BAG, WORKSPACE / 'config' / 'mapping.yaml', OUTPUT, 'cat_moving',
-                  ['--fast'])
+                  ['--fast'], view_args=args)
     if code != 0:
         return code
     textured = OUTPUT / 'textured_map.png'

@@ -1,12 +1,13 @@
 """Live mode without hardware: emulated Liberty -> driver -> registration -> occupancy.
 
     .venv/bin/python launch_scripts/live_emulator.py [--duration S] [--motion SOURCE]
-        [--format binary|ascii] [--output DIR]
+        [--format binary|ascii] [--output DIR] [--view [--http-port P] [--foxglove-port P]]
 
 liberty_emulator streams on a pty (built-in motion by default: fingertips stroking a
 sphere on a swaying object; or a text recording or a bag), liberty_driver publishes
 polhemus/<name>/pose, registration_node and occupancy_node build the map. Ctrl-C (or the
-end of --duration) saves the map to --output and stops every process cleanly.
+end of --duration) saves the map to --output and stops every process cleanly. --view also
+starts live_view: the page at http://127.0.0.1:8080/, Foxglove at ws://127.0.0.1:8765.
 """
 
 from __future__ import annotations
@@ -16,7 +17,13 @@ import os
 import time
 from pathlib import Path
 
-from inhand_tools.launching import ProcessGroup, call_trigger, mapping_graph
+from inhand_tools.launching import (
+    ProcessGroup,
+    add_view_arguments,
+    call_trigger,
+    mapping_graph,
+    start_view,
+)
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 
@@ -27,6 +34,7 @@ def main(argv=None) -> int:
     parser.add_argument('--motion', default='builtin')
     parser.add_argument('--format', choices=('binary', 'ascii'), default='binary')
     parser.add_argument('--output', type=Path, default=WORKSPACE / 'output' / 'live')
+    add_view_arguments(parser)
     args = parser.parse_args(argv)
     port = f'/tmp/liberty-live-{os.getpid()}'
     args.output.mkdir(parents=True, exist_ok=True)
@@ -37,7 +45,10 @@ def main(argv=None) -> int:
                                '-p', f'port:={port}', '-p', f'output_format:={args.format}'])
         mapping_graph(group, str(WORKSPACE / 'config' / 'mapping.yaml'), str(args.output),
                       'live')
+        url = start_view(group, args)
         print(f'[launch] live graph on {port}; Ctrl-C to stop', flush=True)
+        if url:
+            print(f'[launch] live view at {url}', flush=True)
         try:
             deadline = time.monotonic() + args.duration if args.duration else None
             while deadline is None or time.monotonic() < deadline:

@@ -1,7 +1,8 @@
 """Replay a bag of the driver's topics through the mapping graph, then save and show the map.
 
     .venv/bin/python launch_scripts/replay_bag.py BAG [--config FILE] [--output DIR]
-        [--name NAME] [--rate FACTOR | --fast] [--no-render] [--topics T ...]
+        [--name NAME] [--rate FACTOR | --fast] [--no-render] [--topics T ...] [--sim-time]
+        [--view [--http-port P] [--foxglove-port P]]
 
 Starts registration_node and occupancy_node (and stereo_node with config/stereo.yaml when the
 bag holds a stereo pair: it publishes stereo/points and occupancy/textured), replays BAG
@@ -12,7 +13,10 @@ nodes, then renders the map (render_map) and, when the bag has a ground-truth si
 config defaults to config/mapping.yaml (tracked object) when the bag has an object sensor
 topic, else config/mapping_static.yaml. Only the graph's inputs are replayed (driver poses,
 stereo images and camera infos), so a bag recorded from a live run, which also holds maps
-and diagnostics, replays like a driver's bag; --topics chooses.
+and diagnostics, replays like a driver's bag; --topics chooses. --sim-time runs the nodes
+with use_sim_time and the replay with --clock (the graph lives in the bag's time). --view
+also starts live_view (the page at http://127.0.0.1:8080/, Foxglove at ws://127.0.0.1:8765)
+and keeps the graph up after the save until Ctrl-C.
 """
 
 from __future__ import annotations
@@ -26,7 +30,16 @@ from pathlib import Path
 from inhand_common.bag_source import BagError, BagSource
 from inhand_common.ground_truth import truth_path
 from inhand_common.ros_names import OBJECT_POSE_TOPIC
-from inhand_tools.launching import ProcessGroup, TopicWatch, call_trigger, mapping_graph
+from inhand_tools.launching import (
+    ProcessGroup,
+    TopicWatch,
+    add_view_arguments,
+    call_trigger,
+    hold_view,
+    mapping_graph,
+    start_view,
+    wait_for_graph_readers,
+)
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 QUIET = 1.0  # s without registered points after the replay: the graph has caught up
@@ -56,7 +69,8 @@ def bag_topics(bag: Path) -> set[str] | None:
 
 
 def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: list[str],
-           render: bool = True, only: list[str] | None = None) -> int:
+           render: bool = True, only: list[str] | None = None, sim_time: bool = False,
+           view_args=None) -> int:
     if not bag.exists():
         print(f'replay_bag: {bag}: no such bag', file=sys.stderr)
         return 2
@@ -82,12 +96,17 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
     with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch, \
             TopicWatch('occupancy/textured', PointCloud2) as textured:
         mapping_graph(group, str(config), str(output), name,
-                      stereo_config=str(stereo) if stereo else None)
-        # The registration node's first points must find the occupancy node listening.
-        if not watch.wait_connected():
+                      stereo_config=str(stereo) if stereo else None, sim_time=sim_time)
+        view = start_view(group, view_args)
+        # The registration node's first points must find the occupancy node (and the
+        # view) listening.
+        if not watch.wait_connected(subscribers=3 if view else 2):
             print('[launch] the mapping nodes did not come up', file=sys.stderr)
             return 1
-        code = group.run('replay', ['bag_replay', str(bag), *rate_args,
+        if view and replayed:   # bag_replay's wait for a reader is met by the view's alone
+            wait_for_graph_readers(replayed)
+        clock = ['--clock'] if sim_time else []
+        code = group.run('replay', ['bag_replay', str(bag), *rate_args, *clock,
                                     *(['--topics', *replayed] if replayed else [])])
         if code != 0:
             print(f'[launch] bag_replay ended with exit code {code}', file=sys.stderr)
@@ -106,6 +125,8 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
         print(f'[launch] occupancy/save: {message}', flush=True)
         if not ok:
             return 1
+        if view:
+            hold_view(group, view)
     print(f'[launch] graph stopped after {time.monotonic() - started:.1f} s', flush=True)
     npz = output / f'{name}.npz'
     truth = truth_path(bag)
@@ -141,10 +162,15 @@ def main(argv=None) -> int:
     parser.add_argument('--topics', nargs='+', metavar='T',
                         help="replay these topics (default: the graph's inputs the bag holds: "
                         'driver poses, stereo images and camera infos)')
+    parser.add_argument('--sim-time', action='store_true',
+                        help="the nodes run with use_sim_time, the replay publishes the bag's "
+                        'time on /clock')
+    add_view_arguments(parser)
     args = parser.parse_args(argv)
     rate_args = ['--rate', str(args.rate)] if args.rate else ['--fast']
     return replay(args.bag, args.config, args.output, args.name or args.bag.name, rate_args,
-                  render=not args.no_render, only=args.topics)
+                  render=not args.no_render, only=args.topics, sim_time=args.sim_time,
+                  view_args=args)
 
 
 if __name__ == '__main__':

@@ -7,6 +7,7 @@ import pytest
 from conftest import WORKSPACE
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS
 from inhand_stereo.stereo_config import STEREO_PARAMETERS
+from inhand_view.view_config import VIEW_PARAMETERS
 from polhemus_liberty.driver_config import DRIVER_PARAMETERS
 
 README = (WORKSPACE / 'README.md').read_text(encoding='utf-8')
@@ -24,8 +25,8 @@ def test_scripts_named_in_the_readme_exist():
 
 
 @pytest.mark.parametrize('specs', [DRIVER_PARAMETERS, REGISTRATION_PARAMETERS,
-                                   OCCUPANCY_PARAMETERS, STEREO_PARAMETERS],
-                         ids=['driver', 'registration', 'occupancy', 'stereo'])
+                                   OCCUPANCY_PARAMETERS, STEREO_PARAMETERS, VIEW_PARAMETERS],
+                         ids=['driver', 'registration', 'occupancy', 'stereo', 'view'])
 def test_every_node_parameter_is_documented_with_its_allowed_values(specs):
     rows = {m.group(1): m.group(0) for m in re.finditer(r'^\| `(\w+)` \|.*$', README, re.M)}
     for spec in specs:

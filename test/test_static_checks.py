@@ -51,6 +51,7 @@ ALLOWED_IMPORTS = {
     'inhand_stereo': {'inhand_common', 'inhand_mapping'},
     'inhand_sim': {'inhand_common', 'inhand_mapping', 'inhand_stereo'},
     'inhand_tools': {'inhand_common', 'inhand_mapping', 'inhand_stereo'},
+    'inhand_view': {'inhand_common', 'inhand_mapping', 'inhand_tools'},
 }
 
 

@@ -70,6 +70,15 @@ class RegistrationHealth:
             problems.add(WARN, 'object_gap',
                          f"{new['dropped_gap']} fingertip positions dropped {window}: no object "
                          f'pose within max_gap ({self.max_gap:g} s) on both sides of their stamps')
+        if new['restarts']:
+            problems.add(WARN, 'restart',
+                         f"time went back {window} ({new['restarts']} time(s)): a new stream "
+                         '(a second replay, a loop, a clock stepped back); registering goes '
+                         'on into the same map')
+        if new['dropped_old_stream']:
+            problems.add(WARN, 'old_stream',
+                         f"{new['dropped_old_stream']} fingertip positions of the stream before "
+                         f'the time went back arrived after it {window}: dropped')
         if new['dropped_invalid']:
             problems.add(WARN, 'invalid', f"{new['dropped_invalid']} fingertip positions with "
                          f'NaN or infinite values dropped {window}')

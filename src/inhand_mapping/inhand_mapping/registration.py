@@ -53,9 +53,24 @@ for ``max_pending`` seconds from the first data: otherwise, when a fast replay's
 finger messages come after seconds of object poses, those poses would already be trimmed
 and the fingers' first seconds dropped.
 
+Time going back
+---------------
+A stamp more than ``STREAM_RESTART`` (1 s) before the newest one starts a new stream: a
+bag replayed again into a running graph, ``bag_replay --loop``, a clock stepped back. In
+tracked mode the object sensor's stream decides (its poses arrive in time order): what
+is pending is registered against the old history as at the end of an input, the history
+and the finger streams start afresh, and the map frame stays the first pose ever (the
+object's body frame is the same frame in every stream). Fingertips of the old stream
+that are still in flight when the object's new stream has begun (later than its newest
+pose by more than ``STREAM_RESTART``) cannot be paired any more and are counted apart
+(``dropped_old_stream``). In static mode a finger's own stream going back starts a new
+stream. ``restarts`` counts them; the touch models downstream restart a finger's track
+when its time goes back (dwell.py, touch_paths.py), so the map goes on.
+
 Every fingertip received ends up in exactly one counter::
 
-    received == registered + dropped_gap + dropped_before_object + dropped_invalid + pending
+    received == registered + dropped_gap + dropped_before_object + dropped_invalid
+                + dropped_old_stream + pending
 
 All the work is vectorised with numpy (``searchsorted`` over the object time array): no
 Python loop per point.
@@ -85,13 +100,17 @@ from inhand_common.array_types import (
 )
 from inhand_common.rotations import quaternion_to_matrix, slerp
 
-__all__ = ['MODES', 'ObjectPoseAt', 'Registrar', 'RegistrationStats']
+__all__ = ['MODES', 'STREAM_RESTART', 'ObjectPoseAt', 'Registrar', 'RegistrationStats']
 
 MODES = ('tracked', 'static')
 
 # Object poses always kept behind the newest one (sensor seconds), whatever the streams say:
 # covers the ordinary delivery skew of a finger stream not seen yet.
 HISTORY_SECONDS = 1.0
+
+# A stamp this much (s) before the newest one starts a new stream (see the module doc):
+# far above any delivery skew, far below a replay's or a loop's length.
+STREAM_RESTART = 1.0
 
 # Stamps per block when computing object poses (cache-sized temporaries).
 _BLOCK = 16384
@@ -111,10 +130,12 @@ class RegistrationStats:
     dropped_gap: int = 0  # object-pose gap around t longer than max_gap, or history gone
     dropped_before_object: int = 0  # earlier than the first object pose
     dropped_invalid: int = 0  # NaN/inf time or position
+    dropped_old_stream: int = 0  # in flight from a stream that time went back from
     pending: int = 0  # waiting for an object pose at or after their time (set on each call)
     object_poses: int = 0  # object poses accepted
     object_out_of_order: int = 0  # object poses ignored: not newer than the newest one
     object_invalid: int = 0  # object poses ignored: NaN/inf or zero-norm quaternion
+    restarts: int = 0  # new streams: time went back by more than STREAM_RESTART
 
 
 def _empty_result() -> Registered:
@@ -226,9 +247,17 @@ class Registrar:
         self._streams: dict[int, list[float]] = {}
         # Finger streams expected but not heard from yet, and the clock (now) when the
         # first data of any kind was drained: see _watermark.
-        self._unheard = {int(finger) for finger in fingers}
+        self._expected = {int(finger) for finger in fingers}
+        self._unheard = set(self._expected)
         self._data_since = math.nan
         self._clock: float | None = None   # the newest `now` given, for trims between drains
+        # Registered by a restart, handed out by the next drain; and the newest object time
+        # of the stream before (its fingertips still in flight are not paired).
+        self._carried: list[Registered] = []
+        self._old_stream_end = -math.inf
+        # Per finger whose stream went back before the object's: its points below this
+        # time are of the new stream.
+        self._new_stream_below: dict[int, float] = {}
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -261,8 +290,10 @@ class Registrar:
             self.stats.object_invalid += 1
             return
         if t <= self._latest_t:
-            self.stats.object_out_of_order += 1
-            return
+            if t >= self._latest_t - STREAM_RESTART:
+                self.stats.object_out_of_order += 1
+                return
+            self._restart()
         q = q / norm
         if self._n_obj == len(self._obj_t):
             self._make_room()
@@ -275,6 +306,7 @@ class Registrar:
         self.stats.object_poses += 1
         if self._first_pose is None:
             self._first_pose = (p.copy(), q.copy())
+        if math.isnan(self._first_t):
             self._first_t = t
 
     def object_pose_at(self, t: float) -> ObjectPoseAt:
@@ -330,6 +362,10 @@ class Registrar:
             pos = pos.copy()
         if now is not None:
             self._clock = float(now)
+        times, pos, fing = self._new_stream_check(times, pos, fing, live=now is not None)
+        if times.size == 0:
+            self._set_pending()
+            return
         arrival = np.full(times.size, math.nan if now is None else float(now))
         self._chunks.append(_Fingertips(times, pos, fing, arrival))
         self._n_pending += times.size
@@ -351,11 +387,75 @@ class Registrar:
         drops those that never can, and keeps the ones still waiting. ``now``: see the
         module docstring.
         """
-        return self._resolve(final=False, now=now)
+        return self._with_carried(self._resolve(final=False, now=now))
 
     def finish(self) -> Registered:
         """End of input: register what can be, drop the rest (nothing is extrapolated)."""
-        return self._resolve(final=True, now=None)
+        return self._with_carried(self._resolve(final=True, now=None))
+
+    # ------------------------------------------------------------------ new streams
+    def _new_stream_check(self, times: Times, positions: Points, fingers: StationIds,
+                          live: bool) -> tuple[Times, Points, StationIds]:
+        """Static mode: a finger's time going back starts a new stream. Tracked mode: the
+        rows of the stream before a restart still in flight are dropped and counted, and,
+        ``live`` (a clock given: topics delivered independently), a finger whose time went
+        back waits for the object's new stream."""
+        if self.mode == 'static':
+            for finger in np.unique(fingers).tolist():
+                stream = self._streams.get(finger)
+                if stream is not None and \
+                        float(times[fingers == finger].min()) < stream[0] - STREAM_RESTART:
+                    self._restart()
+                    break
+            return times, positions, fingers
+        for finger in np.unique(fingers).tolist() if live else ():
+            stream = self._streams.get(finger)
+            if stream is not None and \
+                    float(times[fingers == finger].min()) < stream[0] - STREAM_RESTART:
+                self._new_stream_below[finger] = stream[0] - STREAM_RESTART
+        if self._old_stream_end == -math.inf:
+            return times, positions, fingers
+        old = (times > self._latest_t + STREAM_RESTART) & \
+            (times <= self._old_stream_end + STREAM_RESTART)
+        if old.any():
+            self.stats.dropped_old_stream += int(np.count_nonzero(old))
+            keep = ~old
+            return times[keep], positions[keep], fingers[keep]
+        return times, positions, fingers
+
+    def _restart(self) -> None:
+        """Time went back: register what the old stream can, then start afresh (the map
+        frame stays). Fingertips already waiting from the new stream wait on."""
+        pending = self._take_pending()
+        new = self._ahead_of_restart(pending)
+        self._new_stream_below = {}
+        self._keep_waiting(pending.part(~new))
+        self._carried.append(self._resolve(final=True, now=self._clock))
+        self._keep_waiting(pending.part(new))
+        self._set_pending()
+        self._old_stream_end = self._latest_t
+        self._n_obj = 0
+        self._first_t = math.nan     # 'before the first pose' is of this stream now
+        self._latest_t = -math.inf
+        self._streams = {}
+        self._unheard = set(self._expected)
+        self._data_since = math.nan
+        self.stats.restarts += 1
+
+    def _ahead_of_restart(self, batch: _Fingertips) -> Bools:
+        """Points of fingers whose stream went back before the object's did."""
+        ahead = np.zeros(batch.size, dtype=bool)
+        for finger, below in self._new_stream_below.items():
+            ahead |= (batch.fingers == finger) & (batch.times < below)
+        return ahead
+
+    def _with_carried(self, result: Registered) -> Registered:
+        if not self._carried:
+            return result
+        parts = [*self._carried, result]
+        self._carried = []
+        points, times, fingers = (np.concatenate([part[k] for part in parts]) for k in range(3))
+        return points, times, fingers
 
     # ------------------------------------------------------------------ internals
     def _set_pending(self) -> None:
@@ -452,6 +552,20 @@ class Registrar:
                           now: float | None) -> Registered:
         """Pair a time-ordered batch with the object poses: register the resolved points,
         keep the later ones waiting, drop and count the rest."""
+        ahead = self._ahead_of_restart(batch)
+        if ahead.any():
+            # A finger's stream went back before the object's did: those points wait for
+            # the object's new stream (see "Time going back"), as long as a later point.
+            new_stream, batch = batch.part(ahead), batch.part(~ahead)
+            stale = np.ones(new_stream.size, dtype=bool) if final else \
+                self._stale(new_stream.arrivals, now)
+            self.stats.dropped_gap += int(np.count_nonzero(stale))
+            held = _Fingertips(*(np.concatenate([a, b]) for a, b in
+                                 zip(held, new_stream.part(~stale))))
+            if batch.size == 0:
+                self._keep_waiting(held)
+                self._set_pending()
+                return _empty_result()
         stamps = _Stamps.of(batch.times)
         match = self._match_object_poses(stamps.times)
         # Before the first pose ever, before the history kept, or across a long gap: these

@@ -20,7 +20,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ['ProcessGroup', 'TopicWatch', 'call_trigger', 'executable', 'mapping_graph']
+__all__ = ['ProcessGroup', 'TopicWatch', 'add_view_arguments', 'call_trigger', 'executable',
+           'hold_view', 'mapping_graph', 'start_view', 'wait_for_graph_readers']
 
 
 def executable(name: str) -> str:
@@ -134,12 +135,16 @@ def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
 
 
 def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: str,
-                  namespace: str | None = None, stereo_config: str | None = None) -> None:
+                  namespace: str | None = None, stereo_config: str | None = None,
+                  sim_time: bool = False) -> None:
     """Start ``registration_node`` and ``occupancy_node`` with the parameters of ``config``
     (a file with both nodes' sections), saving maps to ``output_dir/map_name``; with
     ``stereo_config`` (the rig's file, e.g. config/stereo.yaml) also ``stereo_node``, which
-    takes its session settings from ``config`` and the rig's from ``stereo_config``."""
+    takes its session settings from ``config`` and the rig's from ``stereo_config``.
+    ``sim_time``: the nodes run with ``use_sim_time`` (a replay publishes ``/clock``)."""
     ros_args = ['--ros-args', '--params-file', config]
+    if sim_time:
+        ros_args += ['-p', 'use_sim_time:=true']
     if namespace:
         ros_args += ['-r', f'__ns:={namespace}']
     group.start('registration', ['registration_node', *ros_args])
@@ -228,3 +233,67 @@ class TopicWatch:
         self._thread.join(5.0)
         self._node.destroy_node()
         rclpy.try_shutdown(context=self._context)
+
+
+# -- the live view (inhand_view) -------------------------------------------------------------
+
+def add_view_arguments(parser) -> None:
+    """``--view``, ``--http-port``, ``--foxglove-port`` on a launch script's parser."""
+    parser.add_argument('--view', action='store_true',
+                        help='also start live_view: the page at http://127.0.0.1:HTTP_PORT/ and '
+                        'the Foxglove WebSocket server at ws://127.0.0.1:FOXGLOVE_PORT')
+    parser.add_argument('--http-port', type=int, default=8080, metavar='PORT',
+                        help="with --view: the page's port (default 8080)")
+    parser.add_argument('--foxglove-port', type=int, default=8765, metavar='PORT',
+                        help="with --view: the Foxglove WebSocket server's port (default 8765)")
+
+
+def start_view(group: ProcessGroup, args, namespace: str | None = None) -> str | None:
+    """Start ``live_view`` when ``args.view`` (see :func:`add_view_arguments`); its page's
+    address, or None."""
+    if not getattr(args, 'view', False):
+        return None
+    ros_args = ['--ros-args', '-p', f'http_port:={args.http_port}',
+                '-p', f'foxglove_port:={args.foxglove_port}']
+    if namespace:
+        ros_args += ['-r', f'__ns:={namespace}']
+    group.start('view', ['live_view', *ros_args])
+    return f'http://127.0.0.1:{args.http_port}/'
+
+
+def wait_for_graph_readers(topics, timeout: float = 10.0, ignore: str = 'live_view',
+                           settle: float = 0.5) -> list[str]:
+    """Until every topic has a reader that is not ``ignore``'s (the view reads every topic,
+    so a replay that waits for "a subscriber" would start before the graph's own, and a
+    volatile reader matched late misses what came first); the topics still without one."""
+    import rclpy
+    from rclpy.node import Node
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node('launch_graph_readers', context=context)
+    try:
+        names = [node.resolve_topic_name(topic) for topic in topics]
+
+        def lonely() -> list[str]:
+            return [name for name in names if not any(
+                info.node_name != ignore for info in node.get_subscriptions_info_by_topic(name))]
+        deadline = time.monotonic() + timeout
+        while lonely() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(settle)
+        return lonely()
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def hold_view(group: ProcessGroup, url: str) -> None:
+    """Keep the graph and the view up until Ctrl-C (or the view ends)."""
+    print(f'[launch] live view at {url} (Foxglove: see its page); Ctrl-C to stop', flush=True)
+    view = [process for name, process in group.processes if name == 'view']
+    try:
+        while all(process.poll() is None for process in view):
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass

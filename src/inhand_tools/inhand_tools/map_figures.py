@@ -56,6 +56,7 @@ from inhand_tools.bag_points import BagPoints
 from inhand_tools.drawing import OBLIQUE, SIDE, Camera, View
 from inhand_tools.map_cells import Lattice, LocalMaps, MapCells, cell_indices
 from inhand_tools.map_quality import explored_mask
+from inhand_tools.map_regions import regions
 
 if TYPE_CHECKING:
     from inhand_tools.bag_stereo_shot import BagShot
@@ -143,29 +144,6 @@ def raw_view_box(raw) -> drawing.ViewBox | None:
     those points' 1st-99th percentiles (the object, not the lifts and re-grasps), grown by
     a margin."""
     return drawing.robust_box(raw, 5.0, 95.0, reach=0.02, keep=1.0)
-
-
-def regions(hits, first_touch, top_fraction: float = 0.1, first_fraction: float = 0.1):
-    """(most explored mask, first touched mask, hit count cut, first-touch cut in seconds).
-
-    Most explored: hit cells whose hit count reaches the top ``top_fraction`` (hits at or
-    above the (1 - top_fraction) quantile of the hit cells' counts). First touched: the
-    ``first_fraction`` of hit cells touched earliest (first_touch at or below that quantile).
-    """
-    hits = np.asarray(hits)
-    first_touch = np.asarray(first_touch, dtype=float)
-    hit = hits > 0
-    most = np.zeros(len(hits), dtype=bool)
-    first = np.zeros(len(hits), dtype=bool)
-    hit_cut = first_cut = float('nan')
-    if hit.any():
-        hit_cut = float(np.quantile(hits[hit], 1.0 - top_fraction, method='higher'))
-        most = hit & (hits >= hit_cut)
-    touched = np.isfinite(first_touch)
-    if touched.any():
-        first_cut = float(np.quantile(first_touch[touched], first_fraction, method='lower'))
-        first = touched & (first_touch <= first_cut)
-    return most, first, hit_cut, first_cut
 
 
 def near_cells(points, centres, resolution: float) -> np.ndarray:

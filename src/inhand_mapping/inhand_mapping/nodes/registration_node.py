@@ -164,9 +164,11 @@ class RegistrationNode(Node):
         self.get_logger().info(
             f'stopped: {stats.registered} of {stats.received} fingertip positions registered; '
             f'dropped {stats.dropped_gap} (object pose gap), {stats.dropped_before_object} '
-            f'(before the first object pose), {stats.dropped_invalid} (invalid); '
+            f'(before the first object pose), {stats.dropped_invalid} (invalid), '
+            f'{stats.dropped_old_stream} (in flight when the time went back); '
             f'{stats.pending} pending; {stats.object_poses} object poses, '
-            f'{stats.object_out_of_order} out of order, {stats.object_invalid} invalid')
+            f'{stats.object_out_of_order} out of order, {stats.object_invalid} invalid; '
+            f'{stats.restarts} new stream(s) after the time went back')
 
 
 def main(args=None) -> int:

@@ -1,0 +1,1 @@
+"""ROS 2 nodes: translate between messages and the library."""
