@@ -1,7 +1,7 @@
 """Latency a user feels in a live view: from a fingertip pose published to its cell changing
 in what the viewer receives, at the device's rate (240 Hz x 4 stations), in real time.
 
-    .venv/bin/python test/benchmarks/bench_live_latency.py [--duration S] [--seed N]
+    .venv/bin/python test/benchmarks/bench_live_latency.py [--duration S] [--seed N] [--view]
 
 Simulates a moving cat session (240 Hz, 4 stations, ``--duration`` s) and publishes its poses
 from this process in real time, as the driver would, to registration_node and
@@ -9,7 +9,10 @@ occupancy_node (config/mapping.yaml) in a DDS domain of their own. It subscribes
 ``occupancy/updates`` (map_updates.py) and notes when each cell first arrives, provisional
 (where a fingertip is now) and final (its evidence applied, a look-ahead later). For every
 cell a registered fingertip position fell in, the latency is the first arrival minus the
-wall time the first pose in that cell was published.
+wall time the first pose in that cell was published. With ``--view`` the updates are
+read where Foxglove reads them: live_view runs too, and a Foxglove WebSocket client
+(test/foxglove_client.py) subscribes to its ``occupancy/updates`` channel; the arrival is
+when the client has the message.
 
 Prints p50, p95 and p99 of both latencies and the share of the cells that arrived; the goal
 is p95 <= 200 ms for what the viewer shows first.
@@ -43,7 +46,7 @@ def simulate(folder: Path, duration: float, seed: int) -> Path:
 class Probe:
     """Publishes the bag's poses raw at their pace and receives occupancy/updates."""
 
-    def __init__(self, topics):
+    def __init__(self, topics, listen: bool = True):
         import rclpy
         from geometry_msgs.msg import PoseStamped
         from rclpy.executors import SingleThreadedExecutor
@@ -56,8 +59,10 @@ class Probe:
         reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         self.publishers = {t: self.node.create_publisher(PoseStamped, t, reliable) for t in topics}
         self.arrivals: list[tuple[float, np.ndarray]] = []   # (wall, cells)
-        self.node.create_subscription(PointCloud2, 'occupancy/updates', self._on_updates,
-                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        if listen:   # not with --view: the Foxglove client listens, in this process too
+            self.node.create_subscription(
+                PointCloud2, 'occupancy/updates', self._on_updates,
+                QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
@@ -104,6 +109,45 @@ def publish_in_real_time(probe: Probe, source) -> dict[int, float]:
     return published
 
 
+class ViewProbe:
+    """occupancy/updates as a Foxglove client receives it from live_view."""
+
+    def __init__(self, port: int):
+        sys.path.insert(0, str(WORKSPACE / 'test'))
+        from foxglove_client import MESSAGE_DATA, FoxgloveClient
+
+        class TimedClient(FoxgloveClient):
+            def _on_binary(self, frame: bytes) -> None:
+                if frame[0] == MESSAGE_DATA:
+                    arrivals.append((time.monotonic(), bytes(frame[13:])))
+                super()._on_binary(frame)
+
+        arrivals: list[tuple[float, bytes]] = []
+        self.raw_arrivals = arrivals
+        deadline = time.monotonic() + 30.0
+        while True:
+            try:
+                self.client = TimedClient(f'ws://127.0.0.1:{port}')
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
+        self.client.subscribe('/occupancy/updates', timeout=60.0)
+
+    @property
+    def arrivals(self) -> list[tuple[float, np.ndarray]]:
+        from rclpy.serialization import deserialize_message
+        from sensor_msgs.msg import PointCloud2
+
+        from inhand_common.point_cloud import from_point_cloud2
+        return [(wall, from_point_cloud2(deserialize_message(raw, PointCloud2)))
+                for wall, raw in self.raw_arrivals]
+
+    def close(self) -> None:
+        self.client.close()
+
+
 def percentiles(values) -> str:
     if len(values) == 0:
         return 'none'
@@ -115,6 +159,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--duration', type=float, default=20.0)
     parser.add_argument('--seed', type=int, default=3)
+    parser.add_argument('--view', action='store_true',
+                        help='measure at a Foxglove client of live_view')
     args = parser.parse_args()
     os.environ['ROS_DOMAIN_ID'] = str(random.randint(100, 200))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -133,14 +179,27 @@ def main() -> int:
         log = open(Path(folder) / 'graph.log', 'w')
         with BagSource(bag) as source, ProcessGroup(stream=log) as group:
             mapping_graph(group, config, folder, 'latency')
-            probe = Probe(sorted(source.topics))
+            view = None
+            if args.view:
+                port = random.randint(20000, 40000)
+                group.start('view', ['live_view', '--ros-args', '-p', f'foxglove_port:={port}',
+                                     '-p', f'http_port:={port + 1}'])
+            probe = Probe(sorted(source.topics), listen=not args.view)
             try:
                 probe.wait_matched()
+                if args.view:
+                    view = ViewProbe(port)
+                    time.sleep(1.0)
                 published = publish_in_real_time(probe, source)
                 time.sleep(2.0)
             finally:
                 probe.close()
+                if view is not None:
+                    view.close()
         log.close()
+    arrivals = view.arrivals if view is not None else probe.arrivals
+    where = 'a Foxglove client of live_view' if view is not None else 'a DDS subscriber'
+    print(f'updates read by {where}', flush=True)
     spec = occupancy.grid
     # The first wall time a pose in each cell was published (registered positions: the
     # cells the map works in).
@@ -162,7 +221,7 @@ def main() -> int:
     for cell, wall in zip(flat[order][::-1], walls[inside][order][::-1]):
         first_pub[int(cell)] = float(wall)       # reversed: the earliest wins
     first_any, first_final = {}, {}
-    for wall, cells in probe.arrivals:
+    for wall, cells in arrivals:
         cijk = spec.cell_indices(np.stack([cells['x'], cells['y'], cells['z']], axis=1))
         ids = np.ravel_multi_index(cijk.T, spec.shape)
         for cell, provisional in zip(ids.tolist(), cells['provisional'].tolist()):
@@ -171,8 +230,8 @@ def main() -> int:
                 first_final.setdefault(cell, wall)
     shown = np.array([first_any[c] - t for c, t in first_pub.items() if c in first_any])
     final = np.array([first_final[c] - t for c, t in first_pub.items() if c in first_final])
-    received = sum(len(c) for _, c in probe.arrivals)
-    print(f'{len(probe.arrivals)} updates, {received:,} cells in all; '
+    received = sum(len(c) for _, c in arrivals)
+    print(f'{len(arrivals)} updates, {received:,} cells in all; '
           f'{len(first_pub):,} cells held a fingertip', flush=True)
     print(f'first shown (provisional or final): {percentiles(shown)}; '
           f'{len(shown) / max(len(first_pub), 1):.1%} of the cells arrived')
