@@ -113,6 +113,28 @@ def test_view_state_map_cells_explored_region_and_colours():
     assert state.snapshot()['map']['colour'] == [-1, 0x102030, -1, -1]
 
 
+def test_view_state_merges_map_updates_between_whole_maps():
+    """occupancy/updates (map_updates.py) changes the cells it names and adds new ones (a
+    provisional cell under a fingertip) until the next whole map replaces everything."""
+    from inhand_mapping.map_updates import UPDATE_CELL_DTYPE
+    state = ViewState(ViewSettings())
+    centres = np.array([[0.0025, 0.0025, 0.0025], [0.0075, 0.0025, 0.0025]])
+    state.set_map(map_cloud(centres, np.array([0.9, 0.7], dtype=np.float32), [3, 2]))
+    version = state.snapshot()['map_version']
+    update = np.zeros(2, dtype=UPDATE_CELL_DTYPE)
+    for axis, name in enumerate('xyz'):
+        update[name] = [centres[1, axis], 0.0125 if name == 'x' else 0.0025]
+    update['intensity'], update['hits'], update['provisional'] = [0.95, 0.69], [4, 0], [0, 1]
+    state.apply_updates(update)
+    shown = state.snapshot(since=version)['map']
+    assert np.allclose(np.reshape(shown['position'], (-1, 3)) * 1e-4,
+                       [[0.0025, 0.0025, 0.0025], [0.0075, 0.0025, 0.0025],
+                        [0.0125, 0.0025, 0.0025]])
+    assert shown['probability'] == [900, 950, 690] and shown['hits'] == [3, 4, 0]
+    state.set_map(map_cloud(centres[:1], np.array([0.8], dtype=np.float32), [1]))
+    assert state.snapshot()['map']['probability'] == [800]
+
+
 def test_view_state_trails_keep_the_last_seconds_of_each_finger():
     state = ViewState(ViewSettings(trail_seconds=1.0, finger_labels=('thumb', 'index')))
     times = np.arange(24) * 0.125

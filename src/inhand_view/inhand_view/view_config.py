@@ -20,7 +20,7 @@ VIEW_PARAMETERS = (
               '(ws://host:foxglove_port)', minimum=1, maximum=65535),
     ParamSpec('trail_seconds', 3.0, 'Seconds of fingertip path the page draws behind each '
               'fingertip', minimum=0.0, maximum=120.0),
-    ParamSpec('page_rate', 2.0, 'Times per second the page asks the node for news',
+    ParamSpec('page_rate', 5.0, 'Times per second the page asks the node for news',
               minimum=0.1, maximum=30.0),
     ParamSpec('scan_period', 1.0, 'Seconds between looks at the graph for topics to forward '
               '(new ones, gone ones)', minimum=0.1, maximum=60.0),

@@ -29,7 +29,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -54,7 +54,7 @@ class ViewSettings:
     explored_fraction: float = 0.1
     max_cells: int = 100_000
     finger_labels: tuple[str, ...] = ('thumb', 'index', 'middle')
-    page_rate: float = 2.0
+    page_rate: float = 5.0
 
 
 def cell_keys(centres: np.ndarray) -> np.ndarray:
@@ -89,6 +89,19 @@ def _no_cells() -> dict[str, Any]:
             'explored': []}
 
 
+class _MapCells(NamedTuple):
+    keys: np.ndarray          # (N,) cell_keys, ascending
+    centres: np.ndarray       # (N, 3) m
+    probability: np.ndarray   # (N,)
+    hits: np.ndarray          # (N,) int64
+    first_touch: np.ndarray   # (N,) s, NaN where unknown
+
+    @classmethod
+    def empty(cls) -> _MapCells:
+        return cls(np.empty(0, dtype=np.int64), np.empty((0, 3)), np.empty(0),
+                   np.empty(0, dtype=np.int64), np.empty(0))
+
+
 @dataclass
 class _Trail:
     times: np.ndarray = field(default_factory=lambda: np.empty(0))
@@ -104,6 +117,8 @@ class ViewState:
         self.lock = threading.Lock()
         self.map_version = 0
         self._cells: dict[str, Any] = _no_cells()
+        self._grid = _MapCells.empty()       # every cell of the latest map, sorted by key
+        self._map_dirty = False               # _cells, _map_keys, _map_counts behind _grid
         self._map_frame = MAP_FRAME
         self._map_keys = np.empty(0, dtype=np.int64)     # keys of the shown cells
         self._map_counts = {'cells': 0, 'shown_cells': 0, 'hit_cells': 0, 'explored_cells': 0,
@@ -123,37 +138,77 @@ class ViewState:
 
     # ------------------------------------------------------------------ map
     def set_map(self, cells: np.ndarray, frame: str = MAP_FRAME) -> None:
-        """The latest ``occupancy/cloud``: any structured array with ``x y z intensity hits``."""
+        """The latest ``occupancy/cloud``: any structured array with ``x y z intensity hits``
+        (and ``first_touch``)."""
         centres = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(np.float64)
-        probability = np.asarray(cells['intensity'], dtype=np.float64)
-        hits = np.asarray(cells['hits'], dtype=np.int64)
         names = cells.dtype.names or ()
         first_touch = (np.asarray(cells['first_touch'], dtype=float) if 'first_touch' in names
-                       else np.full(len(hits), np.nan))
-        most, _, hit_cut, _ = regions(hits, first_touch, self.settings.explored_fraction)
+                       else np.full(len(centres), np.nan))
+        keys = cell_keys(centres)
+        order = np.argsort(keys)
+        grid = _MapCells(keys[order], centres[order],
+                         np.asarray(cells['intensity'], dtype=np.float64)[order],
+                         np.asarray(cells['hits'], dtype=np.int64)[order], first_touch[order])
+        with self.lock:
+            self._grid = grid
+            self._map_frame = frame
+            self._map_dirty = True
+            self.map_version += 1
+
+    def apply_updates(self, cells: np.ndarray, frame: str = MAP_FRAME) -> None:
+        """An ``occupancy/updates`` message (map_updates.py): the cells whose probability
+        changed, and the provisional cells where the fingertips are now, merged into the
+        latest map so the page follows a finger between whole maps."""
+        if not len(cells):
+            return
+        centres = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(np.float64)
+        keys = cell_keys(centres)
+        probability = np.asarray(cells['intensity'], dtype=np.float64)
+        hits = np.asarray(cells['hits'], dtype=np.int64)
+        with self.lock:
+            grid = self._grid
+            at = np.minimum(np.searchsorted(grid.keys, keys), max(len(grid.keys) - 1, 0))
+            known = (grid.keys[at] == keys) if len(grid.keys) else np.zeros(len(keys), bool)
+            grid.probability[at[known]] = probability[known]
+            grid.hits[at[known]] = hits[known]
+            new = ~known
+            if new.any():
+                merged = _MapCells(np.concatenate([grid.keys, keys[new]]),
+                                   np.concatenate([grid.centres, centres[new]]),
+                                   np.concatenate([grid.probability, probability[new]]),
+                                   np.concatenate([grid.hits, hits[new]]),
+                                   np.concatenate([grid.first_touch,
+                                                   np.full(int(new.sum()), np.nan)]))
+                order = np.argsort(merged.keys, kind='stable')
+                self._grid = _MapCells(*(part[order] for part in merged))
+            self._map_frame = frame
+            self._map_dirty = True
+            self.map_version += 1
+
+    def _encode_map(self) -> None:
+        """What the page gets of the map (under the lock, once per map version asked for)."""
+        grid = self._grid
+        probability, hits = grid.probability, grid.hits
+        most, _, hit_cut, _ = regions(hits, grid.first_touch, self.settings.explored_fraction)
         shown = np.flatnonzero((probability > PRIOR) | (hits > 0))
         if len(shown) > self.settings.max_cells:
             keep = np.argpartition(-probability[shown], self.settings.max_cells - 1)
             shown = np.sort(shown[keep[:self.settings.max_cells]])
+        centres = grid.centres
         resolution = _lattice_step(centres[shown, 0]) if len(shown) > 1 else DEFAULT_RESOLUTION
-        keys = cell_keys(centres[shown])
-        counts = {'cells': int(len(hits)), 'shown_cells': int(len(shown)),
-                  'hit_cells': int(np.count_nonzero(hits)),
-                  'explored_cells': int(np.count_nonzero(most)),
-                  'explored_min_hits': None if math.isnan(hit_cut) else int(hit_cut)}
-        encoded = {
+        self._map_keys = grid.keys[shown]
+        self._map_counts = {'cells': int(len(hits)), 'shown_cells': int(len(shown)),
+                            'hit_cells': int(np.count_nonzero(hits)),
+                            'explored_cells': int(np.count_nonzero(most)),
+                            'explored_min_hits': None if math.isnan(hit_cut) else int(hit_cut)}
+        self._cells = {
             'resolution': round(resolution, 6),
             'position': _units(centres[shown]),
             'probability': np.rint(probability[shown] * 1000).astype(np.int64).tolist(),
             'hits': hits[shown].tolist(),
             'explored': most[shown].astype(np.int8).tolist(),
         }
-        with self.lock:
-            self._map_keys = keys
-            self._map_frame = frame
-            self._map_counts = counts
-            self._cells = encoded
-            self.map_version += 1
+        self._map_dirty = False
 
     def set_occupied(self, count: int) -> None:
         """How many cells ``occupancy/occupied`` holds."""
@@ -282,6 +337,8 @@ class ViewState:
         """Everything the page shows; the map's cells only when ``since`` is not the
         current map version."""
         with self.lock:
+            if self._map_dirty:
+                self._encode_map()
             counts = dict(self._map_counts)
             counts.update(occupied_cells=self._occupied, fingertip_points=self._points,
                           transforms=self._frames.received,

@@ -9,7 +9,8 @@ server (``ws://host:foxglove_port``; foxglove_link.py), and the ones the page sh
 decoded into the page's state (view_state.py):
 
 * ``occupancy/cloud``, ``occupancy/occupied``, ``occupancy/textured``: the map, its
-  occupied cells, the camera's colours;
+  occupied cells, the camera's colours; ``occupancy/updates`` (20 Hz: the changed cells
+  and the provisional ones under the fingertips) merged into the map between whole maps;
 * ``registration/points``: the fingertips and their trails;
 * ``transforms`` and ``transforms_static`` (geometry_msgs/TransformStamped, one transform
   per message), ``/tf`` and ``/tf_static`` where tf2_msgs is installed (a full ROS
@@ -40,6 +41,7 @@ from std_srvs.srv import Trigger
 from inhand_common.node_runner import run_node
 from inhand_common.parameters import ParameterError
 from inhand_common.point_cloud import from_point_cloud2
+from inhand_common.ros_clock import steady_timer
 from inhand_common.ros_parameters import declare_parameters
 from inhand_mapping.cloud_layouts import unpack_registered
 from inhand_tools.message_types import UnknownMessageType, message_class
@@ -107,7 +109,8 @@ class LiveView(Node):
                                   partial(self._foxglove_trigger, name))
         self.page.start()
         self._decoders = {self.resolve_topic_name(name): decoder for name, decoder in (
-            ('occupancy/cloud', self._on_map), ('occupancy/occupied', self._on_occupied),
+            ('occupancy/cloud', self._on_map), ('occupancy/updates', self._on_updates),
+            ('occupancy/occupied', self._on_occupied),
             ('occupancy/textured', self._on_textured), ('registration/points', self._on_points),
             ('transforms', partial(self._on_transform, static=False)),
             ('transforms_static', partial(self._on_transform, static=True)),
@@ -119,8 +122,8 @@ class LiveView(Node):
         self._refused: set[str] = set()      # topics said once not to be forwardable
         self._failed: set[str] = set()       # topics said once not to decode
         self._refused_frames: set[tuple[str, str]] = set()   # transforms said once unusable
-        self.create_timer(config.scan_period, self._scan)
-        self.create_timer(TICK, self._tick)
+        steady_timer(self, config.scan_period, self._scan)   # whatever /clock does
+        steady_timer(self, TICK, self._tick)
         self._scan()
         self.get_logger().info(
             f'page at {self.page.url}; Foxglove WebSocket at ws://{config.host}:{self.link.port} '
@@ -191,6 +194,10 @@ class LiveView(Node):
     def _on_map(self, data: bytes) -> None:
         msg = deserialize_message(data, PointCloud2)
         self.state.set_map(from_point_cloud2(msg), msg.header.frame_id)
+
+    def _on_updates(self, data: bytes) -> None:
+        msg = deserialize_message(data, PointCloud2)
+        self.state.apply_updates(from_point_cloud2(msg), msg.header.frame_id)
 
     def _on_occupied(self, data: bytes) -> None:
         msg = deserialize_message(data, PointCloud2)
@@ -269,6 +276,9 @@ class LiveView(Node):
 
 
 def main(args=None) -> int:
+    # Not the events executor of the mapping nodes: this node subscribes as topics appear,
+    # and Jazzy's EventsExecutor did not deliver a subscription made after spinning began
+    # (the page's test saw no registration/points).
     return run_node('live_view', LiveView, args)
 
 
