@@ -100,7 +100,7 @@ def write_pose_bag(path: Path, frames, frame_id: str = 'polhemus_source',
     from rosbags.typesys import Stores, get_typestore
     store = get_typestore(Stores.ROS2_JAZZY)
     msgtype = 'geometry_msgs/msg/PoseStamped'
-    names = list(frames[0][1])
+    names = list(dict.fromkeys(name for _, frame in frames for name in frame))
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         connections = {name: writer.add_connection('/' + station_pose_topic(name), msgtype,
                                                    typestore=store) for name in names}

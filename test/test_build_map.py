@@ -113,6 +113,30 @@ def test_truncated_bag_is_reported_and_what_was_read_is_mapped(moving_bag, tmp_p
     assert grid.counts.integrated > 0 and metadata['extra']['truncated']
 
 
+def test_a_bag_from_which_nothing_is_mapped_leaves_a_good_map_alone(moving_bag, tmp_path):
+    """build_map on an unreadable bag used to write an empty map over a good one."""
+    bag, _, _ = moving_bag
+    assert build_map(bag, '--config', CONFIG, '--output-dir', tmp_path, '--name', 'm',
+                     '--quiet').returncode == 0
+    good = {p.name: p.read_bytes() for p in tmp_path.glob('m*')}
+    # One object pose, then fingertips only: a bag that reads but maps nothing (every
+    # fingertip is later than the last object pose, never extrapolated).
+    session = sphere_session(seconds=0.5)[0]
+    frames = [(session[0][0], {'object': session[0][1]['object']})] + \
+        [(t, {k: v for k, v in frame.items() if k != 'object'}) for t, frame in session[10:]]
+    cut = write_pose_bag(tmp_path / 'no_object', frames)
+    result = build_map(cut, '--config', CONFIG, '--output-dir', tmp_path, '--name', 'm',
+                       '--quiet')
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert 'nothing could be mapped' in result.stderr and '--force' in result.stderr
+    assert {p.name: p.read_bytes() for p in tmp_path.glob('m*')} == good
+    forced = build_map(cut, '--config', CONFIG, '--output-dir', tmp_path, '--name', 'm',
+                       '--quiet', '--force')
+    assert forced.returncode == 0, forced.stderr
+    grid, _ = load_npz(tmp_path / 'm.npz')
+    assert grid.hits.sum() == 0
+
+
 @pytest.mark.parametrize('content, expected', [
     (b'not a bag at all', 'cannot open as a rosbag2 bag'),
     (b'', 'cannot open as a rosbag2 bag'),

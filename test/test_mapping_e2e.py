@@ -268,3 +268,17 @@ def test_occupancy_node_refuses_a_workspace_that_is_not_whole_cells():
         code = node.popen.wait(30)
     assert code == 2, node.output()
     assert "'workspace_size' = 0.3 and 'resolution' = 0.007" in node.output()
+
+
+def test_occupancy_node_refuses_a_grid_larger_than_the_machine_has():
+    """0.5 m at 0.5 mm is 1000^3 cells, about 112 GB: the node used to take 2 GB in 5 s
+    before anything said so. It refuses at start with the figure and what the machine
+    has."""
+    started = time.monotonic()
+    with running(['occupancy_node', '--ros-args', '-p', 'workspace_size:=0.5', '-p',
+                  'resolution:=0.0005']) as node:
+        code = node.popen.wait(30)
+    assert code == 2, node.output()
+    assert time.monotonic() - started < 15
+    assert re.search(r'1000\^3 cells, about [\d.]+ GB of memory; this machine has [\d.]+ GB '
+                     'available', node.output()), node.output()

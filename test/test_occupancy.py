@@ -1356,3 +1356,53 @@ def test_textured_cloud_layout_packs_rgb_as_pcl_does():
     assert empty.shape == (0,) and empty.dtype == TEXTURED_CELL_DTYPE
     with pytest.raises(ValueError):
         textured_cells(occupied, colours[1:], textured)
+
+
+SAVE_UNDER_A_FILE_SIZE_LIMIT = r'''
+import resource, signal, sys
+import numpy as np
+from inhand_mapping.map_products import save_map
+from inhand_mapping.occupancy import GridSpec, OccupancyGrid, SensorModel
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # past the limit: EFBIG, as a full disk
+limit = int(sys.argv[2])
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+grid = OccupancyGrid(GridSpec(0.1, 0.002), SensorModel(touch_model='samples'))
+points = np.random.default_rng(5).uniform(-0.04, 0.04, (20000, 3))
+for _ in range(3):
+    grid.integrate(points)
+try:
+    save_map(grid, sys.argv[1], 'map', 0.8)
+except OSError as error:
+    print('refused:', error)
+'''
+
+
+def _map_files(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_a_map_save_replaces_the_whole_set_or_changes_nothing(tmp_path):
+    """On a full disk the save used to fail with the new NPZ beside the old PLYs, and a map
+    without occupied cells left a stale _object_centric.ply. The three files are one set."""
+    from inhand_mapping.map_products import save_map
+    folder = tmp_path / 'maps'
+    old = OccupancyGrid(GridSpec(0.1, 0.002), SensorModel(touch_model='samples'))
+    for _ in range(3):
+        old.integrate(np.array([[0.001, 0.001, 0.001], [0.011, 0.001, 0.001]]))
+    save_map(old, folder, 'map', 0.8)
+    before = _map_files(folder)
+    assert set(before) == {'map.npz', 'map.ply', 'map_object_centric.ply'}
+    # How big the new set is, written where nothing limits it.
+    probe = tmp_path / 'probe'
+    subprocess.run([sys.executable, '-c', SAVE_UNDER_A_FILE_SIZE_LIMIT, str(probe), str(2**40)],
+                   check=True)
+    sizes = {p.name: p.stat().st_size for p in probe.iterdir()}
+    assert sizes['map.ply'] > sizes['map.npz']   # so the NPZ is written, then the PLY fails
+    result = subprocess.run([sys.executable, '-c', SAVE_UNDER_A_FILE_SIZE_LIMIT, str(folder),
+                             str(sizes['map.npz'] + 1)], capture_output=True, text=True,
+                            check=True)
+    assert 'refused:' in result.stdout, result.stdout + result.stderr
+    assert _map_files(folder) == before       # nothing changed, no temporary file left
+    # A map with no occupied cells: the set has no object-centric PLY any more.
+    save_map(OccupancyGrid(GridSpec(0.1, 0.002)), folder, 'map', 0.8)
+    assert set(_map_files(folder)) == {'map.npz', 'map.ply'}

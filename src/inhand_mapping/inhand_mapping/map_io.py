@@ -35,9 +35,11 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any, TypeAlias
+from typing import Any, BinaryIO, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -59,6 +61,8 @@ __all__ = [
 ]
 
 FilePath: TypeAlias = str | os.PathLike[str]
+# Opens a file for writing as a context manager: atomic_write, or a FileSet's write.
+Writer: TypeAlias = Callable[[FilePath], AbstractContextManager[BinaryIO]]
 
 FORMAT_VERSION = 2
 SENSOR_MODEL_FIELDS = tuple(f.name for f in fields(SensorModel))
@@ -134,10 +138,12 @@ def _cell_colours(colours: ArrayLike, textured: ArrayLike, count: int
 
 def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
              extra: dict[str, Any] | None = None, colours: GridColours | None = None,
-             local_maps: dict[str, NDArray[np.float64]] | None = None) -> Path:
+             local_maps: dict[str, NDArray[np.float64]] | None = None,
+             write: Writer = atomic_write) -> Path:
     """The grid, its model and metadata (module doc); ``colours`` adds the ``rgb`` and
     ``textured`` arrays, ``local_maps`` (names from LOCAL_MAPS -> log-odds grids) the local
-    maps the grid was fused from."""
+    maps the grid was fused from. ``write`` opens the file (atomically; a FileSet's
+    ``write`` makes it one of a set)."""
     spec, model = grid.spec, grid.model
     if colours is not None and colours.textured.shape != spec.shape:
         raise ValueError(f'grid colours of shape {colours.textured.shape} for a grid of '
@@ -161,7 +167,7 @@ def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
         arrays.update(rgb=colours.rgb, textured=colours.textured)
     for name, local in (local_maps or {}).items():
         arrays[f'local_{name}'] = local
-    with atomic_write(target) as stream:
+    with write(target) as stream:
         np.savez_compressed(stream, **arrays)  # type: ignore[arg-type]
     return target
 
@@ -249,7 +255,7 @@ _PLY_COLOUR_FIELDS = [('red', 'u1', 'uchar'), ('green', 'u1', 'uchar'), ('blue',
 
 def save_ply(path: FilePath, centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
              first_touch: ArrayLike, frame_id: str = 'object', colours: ArrayLike | None = None,
-             textured: ArrayLike | None = None) -> Path:
+             textured: ArrayLike | None = None, write: Writer = atomic_write) -> Path:
     """Occupied cells as a binary PLY point cloud (see the module doc for the fields): centres
     (M, 3) and the three (M,) fields; with ``colours`` (M, 3) RGB and ``textured`` (M,)
     (both or neither) also ``red green blue textured``."""
@@ -274,7 +280,7 @@ def save_ply(path: FilePath, centres: ArrayLike, probabilities: ArrayLike, hits:
     header += [f'property {ply_type} {name}' for name, _, ply_type in properties]
     header.append('end_header')
     target = Path(path)
-    with atomic_write(target) as stream:
+    with write(target) as stream:
         stream.write(('\n'.join(header) + '\n').encode('ascii'))
         stream.write(vertices.tobytes())
     return target

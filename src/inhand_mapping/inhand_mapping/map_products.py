@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from inhand_common.atomic_file import atomic_file_set
 from inhand_mapping.cloud_layouts import MapClouds
 from inhand_mapping.map_io import GridColours, save_npz, save_ply
 from inhand_mapping.object_frame import ObjectFrame, object_frame
@@ -41,7 +42,8 @@ def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
              textured=None, local_maps: dict | None = None) -> tuple[Path, ...]:
     """``<folder>/<name>.npz`` (the whole grid), ``<name>.ply`` (occupied cells) and, when
     there are occupied cells, ``<name>_object_centric.ply`` (the same cells in
-    ``object_centric``: origin at the centre of mass), each written atomically.
+    ``object_centric``: origin at the centre of mass), written atomically as one set (all
+    replaced or none; without occupied cells an old ``_object_centric.ply`` is removed).
 
     The NPZ metadata also records the threshold and the object-centric frame. ``colours``
     (M, 3) RGB and ``textured`` (M,), both or neither, colour the occupied cells, in the
@@ -62,13 +64,18 @@ def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
     centres, probabilities, hits, first_touch = grid.cells(threshold=threshold)
     cell_colours = None if colours is None else \
         GridColours.from_cells(grid.spec, centres, colours, textured)
-    npz = save_npz(grid, folder / f'{name}.npz', frame_id=frame_id, extra=info,
-                   colours=cell_colours, local_maps=local_maps)
-    ply = save_ply(folder / f'{name}.ply', centres, probabilities, hits, first_touch,
-                   frame_id=frame_id, colours=colours, textured=textured)
-    if frame is None:
-        return npz, ply
-    centric = save_ply(folder / f'{name}_object_centric.ply', frame.to_object_centric(centres),
-                       probabilities, hits, first_touch, frame_id='object_centric',
-                       colours=colours, textured=textured)
-    return npz, ply, centric
+    centric = folder / f'{name}_object_centric.ply'
+    # One set: all of it replaces the old files, or (a full disk) none of it does; a map
+    # without occupied cells removes the old set's object-centric PLY.
+    with atomic_file_set() as files:
+        npz = save_npz(grid, folder / f'{name}.npz', frame_id=frame_id, extra=info,
+                       colours=cell_colours, local_maps=local_maps, write=files.write)
+        ply = save_ply(folder / f'{name}.ply', centres, probabilities, hits, first_touch,
+                       frame_id=frame_id, colours=colours, textured=textured, write=files.write)
+        if frame is None:
+            files.remove(centric)
+        else:
+            save_ply(centric, frame.to_object_centric(centres), probabilities, hits,
+                     first_touch, frame_id='object_centric', colours=colours,
+                     textured=textured, write=files.write)
+    return (npz, ply) if frame is None else (npz, ply, centric)

@@ -16,6 +16,7 @@ from typing import Any
 import yaml
 
 from inhand_common.frame_names import FRAME_PARAMETERS, FrameNames
+from inhand_common.machine_memory import available_memory, human_bytes
 from inhand_common.parameters import (
     ParameterError,
     ParamSpec,
@@ -111,6 +112,23 @@ OCCUPANCY_PARAMETERS = (
 )
 
 
+# Bytes per cell the occupancy node holds (the grid's arrays, the path model's evidence, the
+# map clouds' buffers, the live updates' copy), measured with tracemalloc on 100^3 cells:
+# 119 at the peak without fusion, 210 with a vision map fused.
+BYTES_PER_CELL = {'none': 120, 'fusion': 210}
+
+
+def memory_problem(cells_per_axis: int, fusion: str, available: int | None) -> str | None:
+    """Why a grid of ``cells_per_axis``^3 cells does not fit in ``available`` bytes (None
+    when it does, or when the machine does not say)."""
+    need = cells_per_axis ** 3 * BYTES_PER_CELL['none' if fusion == 'none' else 'fusion']
+    if available is None or need <= available:
+        return None
+    return (f"parameters 'workspace_size' and 'resolution' make {cells_per_axis}^3 cells, "
+            f'about {human_bytes(need)} of memory; this machine has {human_bytes(available)} '
+            "available: use a coarser 'resolution' or a smaller 'workspace_size'")
+
+
 @dataclass(frozen=True)
 class RegistrationConfig:
     """The registration node's parameters, checked and typed (``build_map`` uses the same)."""
@@ -188,6 +206,10 @@ class OccupancyConfig:
         elif round(cells) > 1000:
             problems.append(f'{round(cells)} cells per axis is more than 1000: use a coarser '
                             "'resolution' or a smaller 'workspace_size'")
+        else:
+            problem = memory_problem(round(cells), values['fusion'], available_memory())
+            if problem:
+                problems.append(problem)
         if not values['clamp_min'] < values['prior'] < values['clamp_max']:
             problems.append("parameters 'clamp_min' < 'prior' < 'clamp_max' must hold (got "
                             f"{values['clamp_min']}, {values['prior']}, {values['clamp_max']})")

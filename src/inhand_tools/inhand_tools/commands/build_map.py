@@ -78,6 +78,9 @@ def main(argv=None) -> int:
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                         help='override a parameter (repeatable)')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
+    parser.add_argument('--force', action='store_true',
+                        help='write an empty map over an existing one (a bag from which '
+                        'nothing could be mapped otherwise leaves the existing map alone)')
     args = parser.parse_args(argv)
     single_threaded_blas()     # as the nodes it stands for
     try:
@@ -99,6 +102,14 @@ def main(argv=None) -> int:
     global_map, texture, stereo_notes = _with_vision(args.bag, stereo, occupancy, touch)
     grid = global_map.grid()
     name = args.name or args.bag.name.rsplit('.', 1)[0] or 'map'
+    existing = args.output_dir / f'{name}.npz'
+    if not grid.touched_mask().any() and existing.exists() and not args.force:
+        # An unreadable bag must not cost a good map.
+        print(f'build_map: nothing could be mapped from {args.bag} ({report["messages"]} '
+              f'messages read{"; " + str(report["truncated"]) if report["truncated"] else ""}'
+              f'); {existing} and its PLYs are left as they were (--force writes the empty map '
+              'over them)', file=sys.stderr)
+        return EXIT_TRUNCATED
     paths = save_map(grid, args.output_dir, name, threshold, occupancy.frames.map_frame,
                      extra={'bag': str(args.bag), 'truncated': report['truncated'],
                             'fusion': occupancy.fusion if global_map.fusing else 'none'},
