@@ -26,6 +26,7 @@ from inhand_tools.launching import (
 )
 
 WORKSPACE = Path(__file__).resolve().parents[1]
+AUTOSAVE = 30.0   # s: the live session's map is saved this often
 
 
 def main(argv=None) -> int:
@@ -34,6 +35,9 @@ def main(argv=None) -> int:
     parser.add_argument('--motion', default='builtin')
     parser.add_argument('--format', choices=('binary', 'ascii'), default='binary')
     parser.add_argument('--output', type=Path, default=WORKSPACE / 'output' / 'live')
+    parser.add_argument('--autosave', type=float, default=AUTOSAVE, metavar='SECONDS',
+                        help='the occupancy node saves a changed map this often (default '
+                        f'{AUTOSAVE:g} s; 0: off): a crash loses at most that much')
     add_view_arguments(parser)
     args = parser.parse_args(argv)
     port = f'/tmp/liberty-live-{os.getpid()}'
@@ -44,7 +48,7 @@ def main(argv=None) -> int:
                                str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
                                '-p', f'port:={port}', '-p', f'output_format:={args.format}'])
         mapping_graph(group, str(WORKSPACE / 'config' / 'mapping.yaml'), str(args.output),
-                      'live')
+                      'live', autosave=args.autosave)
         url = start_view(group, args)
         print(f'[launch] live graph on {port}; Ctrl-C to stop', flush=True)
         if url:

@@ -11,7 +11,7 @@ import numpy as np
 
 from inhand_common.atomic_file import atomic_file_set
 from inhand_mapping.cloud_layouts import MapClouds
-from inhand_mapping.map_io import GridColours, save_npz, save_ply
+from inhand_mapping.map_io import GridColours, load_local_maps, load_npz, save_npz, save_ply
 from inhand_mapping.object_frame import ObjectFrame, object_frame
 from inhand_mapping.occupancy import OccupancyGrid
 
@@ -79,3 +79,22 @@ def save_map(grid: OccupancyGrid, folder: Path, name: str, threshold: float,
                      first_touch, frame_id='object_centric', colours=colours,
                      textured=textured, write=files.write)
     return (npz, ply) if frame is None else (npz, ply, centric)
+
+
+def resume_from(grid: OccupancyGrid, path: Path) -> str:
+    """Start ``grid`` from a map saved by :func:`save_map` (``initial_map``): the touch map
+    (the saved grid, or its touch local map when it was fused), its hits and first touches.
+    ValueError, naming the file and what differs, for a file that is not a map or a map of
+    another grid. Returns a line saying what was taken."""
+    saved, metadata = load_npz(path)
+    if saved.spec != grid.spec:
+        raise ValueError(f'{path} is a map of {saved.spec.cells_per_axis}^3 cells of '
+                         f'{saved.spec.resolution * 1000:g} mm centred at '
+                         f'{list(saved.spec.centre)}; this node maps '
+                         f'{grid.spec.cells_per_axis}^3 cells of {grid.spec.resolution * 1000:g}'
+                         f' mm centred at {list(grid.spec.centre)} (workspace_size, resolution, '
+                         'workspace_centre must match)')
+    touch = load_local_maps(path).get('touch', saved.log_odds)
+    grid.show(touch, saved)
+    return (f'{int(saved.hits.sum())} hits in {int(np.count_nonzero(saved.hits))} cells from '
+            f'{path}')

@@ -108,6 +108,12 @@ OCCUPANCY_PARAMETERS = (
               'at full weight)', choices=POOLINGS),
     ParamSpec('output_dir', 'maps', 'Folder occupancy/save writes <map_name>.npz and .ply to'),
     ParamSpec('map_name', 'map', 'File name stem of saved maps'),
+    ParamSpec('initial_map', '', 'A map saved before (NPZ) to start from, e.g. after a crash; '
+              'it must be of this grid (workspace_size, resolution, workspace_centre); '
+              'empty: start empty'),
+    ParamSpec('autosave_period', 0.0, 'Seconds between saves of a changed map to output_dir '
+              '(atomic, as occupancy/save); 0: only on request and at shutdown',
+              minimum=0.0, maximum=86400.0),
     *FRAME_PARAMETERS,
 )
 
@@ -192,6 +198,8 @@ class OccupancyConfig:
     entropy_radius: int = 0
     entropy_pooling: str = 'linear'
     update_rate: float = 20.0       # Hz, occupancy/updates; 0: off
+    initial_map: Path | None = None  # NPZ to start from
+    autosave_period: float = 0.0    # s; 0: off
     frames: FrameNames = field(default_factory=FrameNames)
 
     @classmethod
@@ -231,6 +239,8 @@ class OccupancyConfig:
                    occupied_threshold=float(values['occupied_threshold']),
                    publish_rate=float(values['publish_rate']),
                    update_rate=float(values['update_rate']),
+                   initial_map=Path(values['initial_map']) if values['initial_map'] else None,
+                   autosave_period=float(values['autosave_period']),
                    output_dir=Path(values['output_dir']), map_name=values['map_name'],
                    fusion=values['fusion'], entropy_radius=int(values['entropy_radius']),
                    entropy_pooling=values['entropy_pooling'], frames=frames)

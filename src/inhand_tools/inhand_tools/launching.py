@@ -136,12 +136,13 @@ def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
 
 def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: str,
                   namespace: str | None = None, stereo_config: str | None = None,
-                  sim_time: bool = False) -> None:
+                  sim_time: bool = False, autosave: float = 0.0) -> None:
     """Start ``registration_node`` and ``occupancy_node`` with the parameters of ``config``
     (a file with both nodes' sections), saving maps to ``output_dir/map_name``; with
     ``stereo_config`` (the rig's file, e.g. config/stereo.yaml) also ``stereo_node``, which
     takes its session settings from ``config`` and the rig's from ``stereo_config``.
-    ``sim_time``: the nodes run with ``use_sim_time`` (a replay publishes ``/clock``)."""
+    ``sim_time``: the nodes run with ``use_sim_time`` (a replay publishes ``/clock``);
+    ``autosave``: the occupancy node saves a changed map every so many seconds."""
     ros_args = ['--ros-args', '--params-file', config]
     if sim_time:
         ros_args += ['-p', 'use_sim_time:=true']
@@ -149,7 +150,8 @@ def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: s
         ros_args += ['-r', f'__ns:={namespace}']
     group.start('registration', ['registration_node', *ros_args])
     group.start('occupancy', ['occupancy_node', *ros_args, '-p', f'output_dir:={output_dir}',
-                              '-p', f'map_name:={map_name}'])
+                              '-p', f'map_name:={map_name}',
+                              '-p', f'autosave_period:={float(autosave)}'])
     if stereo_config:
         group.start('stereo', ['stereo_node', *ros_args, '--params-file', stereo_config])
 

@@ -57,6 +57,7 @@ from std_srvs.srv import Trigger
 from inhand_common.health import Problems
 from inhand_common.node_runner import run_node
 from inhand_common.packed_rgb import colours_of_rgb
+from inhand_common.parameters import ParameterError
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
 from inhand_common.ros_clock import steady_timer
 from inhand_common.ros_diagnostics import NodeDiagnostics
@@ -65,7 +66,7 @@ from inhand_common.ros_transforms import Transform, TransformPublisher
 from inhand_mapping.cloud_layouts import unpack_registered, vision_log_odds
 from inhand_mapping.global_map import GlobalMap
 from inhand_mapping.map_io import GridColours
-from inhand_mapping.map_products import MapProducts, save_map
+from inhand_mapping.map_products import MapProducts, resume_from, save_map
 from inhand_mapping.map_updates import MapUpdates
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, OccupancyConfig
 from inhand_mapping.node_health import OccupancyActivity, OccupancyHealth
@@ -82,9 +83,16 @@ class OccupancyNode(Node):
             declare_parameters(self, OCCUPANCY_PARAMETERS))
         self.grid = self.config.make_grid()
         config = self.config
+        resumed = None
+        if config.initial_map is not None:
+            try:
+                resumed = resume_from(self.grid, config.initial_map)
+            except (OSError, ValueError) as error:
+                raise ParameterError([f"parameter 'initial_map': {error}"]) from None
         self.map = GlobalMap.for_config(self.grid, config)
         self._products: dict[int, MapProducts] = {}   # by grid: touch, fused
         self._changed = False
+        self._unsaved = False   # points integrated since the last save (autosave, shutdown)
         self._idle_ticks = 0   # publish periods since points last came
         self._latest_stamp = None
         self._colours: GridColours | None = None   # the latest occupancy/textured, by cell
@@ -106,6 +114,12 @@ class OccupancyNode(Node):
         self.create_service(Trigger, 'occupancy/save', self._on_save)
         self.transforms = TransformPublisher(self)
         steady_timer(self, 1.0 / self.config.publish_rate, self._publish)
+        if config.autosave_period > 0:
+            steady_timer(self, config.autosave_period, self._autosave)
+        if resumed is not None:   # not yet saved as this node's map
+            self.map.touch_changed()
+            self._changed = self._unsaved = True
+            self.get_logger().info(f'resumed: {resumed}')
         self._updates = None
         if config.update_rate > 0:
             self._updates = MapUpdates(config.grid, config.model)
@@ -138,6 +152,7 @@ class OccupancyNode(Node):
             self.grid.integrate(points, times, fingers)
             self.map.touch_changed()
             self._changed = True
+            self._unsaved = True
         if len(times):
             self._latest_stamp = msg.header.stamp
 
@@ -229,6 +244,17 @@ class OccupancyNode(Node):
             self._changed = True
 
     def _on_save(self, _request, response):
+        response.success, response.message = self.save()
+        return response
+
+    def _autosave(self) -> None:
+        if self._unsaved:
+            ok, message = self.save()
+            if ok:
+                self.get_logger().info(f'autosaved {message}')
+
+    def save(self) -> tuple[bool, str]:
+        """Write the map set (map_products.save_map); (success, paths or the reason)."""
         self._apply_held()
         grid = self.map.grid()
         colours = textured = None
@@ -244,15 +270,14 @@ class OccupancyNode(Node):
                              colours=colours, textured=textured,
                              local_maps=self.map.local_maps())
         except OSError as error:
-            response.success = False
-            response.message = f'could not save the map: {error}'
-            self.get_logger().error(response.message)
-            return response
-        response.success = True
-        response.message = ' '.join(str(p) for p in paths)
-        self.get_logger().info(f'saved {response.message}')
+            message = f'could not save the map: {error}'
+            self.get_logger().error(message)
+            return False, message
+        self._unsaved = False
+        message = ' '.join(str(p) for p in paths)
+        self.get_logger().info(f'saved {message}')
         self._publish()
-        return response
+        return True, message
 
     def _report(self, now: float, problems: Problems) -> tuple[str, dict[str, object]]:
         self.activity.pending = self.grid.pending
@@ -263,6 +288,11 @@ class OccupancyNode(Node):
         self.get_logger().info(f'registration/points: {status.current_count} publisher(s)')
 
     def close(self) -> None:
+        """At Ctrl-C or SIGTERM: what was mapped since the last save is saved."""
+        if self._unsaved:
+            ok, message = self.save()
+            self.get_logger().info(f'saved at shutdown: {message}' if ok else
+                                   f'could not save at shutdown: {message}')
         counts = self.grid.counts
         self.get_logger().info(
             f'stopped: received {self.activity.received} points in {self.activity.messages} '
