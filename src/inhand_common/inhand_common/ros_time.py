@@ -9,8 +9,7 @@ __all__ = ['stamp_from_nanoseconds', 'stamp_from_seconds']
 
 def stamp_from_seconds(seconds: float) -> Time:
     """builtin_interfaces/Time of a float time in seconds (nanosecond resolution)."""
-    nanoseconds = int(round(seconds * 1e9))
-    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+    return stamp_from_nanoseconds(round(seconds * 1e9))
 
 
 

@@ -401,18 +401,11 @@ class Registrar:
         ``live`` (a clock given: topics delivered independently), a finger whose time went
         back waits for the object's new stream."""
         if self.mode == 'static':
-            for finger in np.unique(fingers).tolist():
-                stream = self._streams.get(finger)
-                if stream is not None and \
-                        float(times[fingers == finger].min()) < stream[0] - STREAM_RESTART:
-                    self._restart()
-                    break
+            if self._fingers_gone_back(times, fingers):
+                self._restart()
             return times, positions, fingers
-        for finger in np.unique(fingers).tolist() if live else ():
-            stream = self._streams.get(finger)
-            if stream is not None and \
-                    float(times[fingers == finger].min()) < stream[0] - STREAM_RESTART:
-                self._new_stream_below[finger] = stream[0] - STREAM_RESTART
+        if live:
+            self._new_stream_below.update(self._fingers_gone_back(times, fingers))
         if self._old_stream_end == -math.inf:
             return times, positions, fingers
         old = (times > self._latest_t + STREAM_RESTART) & \
@@ -422,6 +415,17 @@ class Registrar:
             keep = ~old
             return times[keep], positions[keep], fingers[keep]
         return times, positions, fingers
+
+    def _fingers_gone_back(self, times: Times, fingers: StationIds) -> dict[int, float]:
+        """The fingers whose rows go back more than STREAM_RESTART before their stream's
+        newest stamp, each with the time below which its rows are of a new stream."""
+        gone_back = {}
+        for finger in np.unique(fingers).tolist():
+            stream = self._streams.get(finger)
+            if stream is not None and \
+                    float(times[fingers == finger].min()) < stream[0] - STREAM_RESTART:
+                gone_back[finger] = stream[0] - STREAM_RESTART
+        return gone_back
 
     def _restart(self) -> None:
         """Time went back: register what the old stream can, then start afresh (the map

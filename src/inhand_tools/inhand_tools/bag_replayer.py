@@ -373,10 +373,8 @@ class BagClock:
         return bag_ns + round((time.monotonic() - wall) * self.rate * 1e9)
 
     def _publish(self) -> None:
-        from builtin_interfaces.msg import Time
-        ns = self.now_ns()
-        self._publisher.publish(self._message(clock=Time(sec=ns // 1_000_000_000,
-                                                         nanosec=ns % 1_000_000_000)))
+        from inhand_common.ros_time import stamp_from_nanoseconds
+        self._publisher.publish(self._message(clock=stamp_from_nanoseconds(self.now_ns())))
         self.published += 1
 
     def _tick(self) -> None:

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import serial
 
-from inhand_common.health import ERROR, WARN, Health, IntervalCounts, Problems
+from inhand_common.health import ERROR, WARN, IntervalCounts, Problems
 from polhemus_liberty.device_pose import record_to_pose
 from polhemus_liberty.driver_config import DriverConfig
 from polhemus_liberty.frames import Frame, FrameAssembler
@@ -323,12 +323,6 @@ class LibertyDriver:
                       resets=self.resets, published_frames=self.published,
                       invalid_poses=self.invalid_poses)
         return totals
-
-    def status(self, now: float | None = None) -> Health:
-        """Level, message and values for diagnostics (see :meth:`report`)."""
-        problems = Problems()
-        ok_message, values = self.report(time.monotonic() if now is None else now, problems)
-        return problems.health(ok_message, values)
 
     def report(self, now: float, problems: Problems) -> tuple[str, dict[str, object]]:
         """The OK message and the values for diagnostics, with what is wrong added to
