@@ -38,7 +38,6 @@ from inhand_tools.launching import (
     hold_view,
     mapping_graph,
     start_view,
-    wait_for_graph_readers,
 )
 
 WORKSPACE = Path(__file__).resolve().parents[1]
@@ -103,8 +102,6 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
         if not watch.wait_connected(subscribers=3 if view else 2):
             print('[launch] the mapping nodes did not come up', file=sys.stderr)
             return 1
-        if view and replayed:   # bag_replay's wait for a reader is met by the view's alone
-            wait_for_graph_readers(replayed)
         clock = ['--clock'] if sim_time else []
         code = group.run('replay', ['bag_replay', str(bag), *rate_args, *clock,
                                     *(['--topics', *replayed] if replayed else [])])

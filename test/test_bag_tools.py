@@ -70,8 +70,9 @@ class RawListener(BackgroundNode):
     make it a deliberately slow subscriber.
     """
 
-    def __init__(self, topics, qos=KEEP_ALL, stall: float = 0.0, delay: float = 0.0):
-        super().__init__('test_raw_listener')
+    def __init__(self, topics, qos=KEEP_ALL, stall: float = 0.0, delay: float = 0.0,
+                 name: str = 'test_raw_listener'):
+        super().__init__(name)
         self.received: list[tuple[float, str, bytes]] = []
         self.stall, self.delay = stall, delay
         for topic in topics:
@@ -233,6 +234,28 @@ def test_fast_replay_loses_nothing_to_a_slow_subscriber(tmp_path):
     assert len(got) == count and got == expected
     assert 'held back' in result.stdout, result.stdout  # publish() found the writer full
     assert 'waiting for a subscriber on /polhemus/object/pose' in result.stderr
+
+
+def test_the_live_views_reader_alone_does_not_start_a_replay(tmp_path):
+    """live_view reads every topic: matched to it alone, a replay would start before the
+    graph's own readers were discovered (and lose them everything). Its readers are still
+    fed; --ignore-readers with no names counts every reader."""
+    bag = single_topic_bag(tmp_path / 'single', 50)
+    with listening_raw(['polhemus/object/pose'], name='live_view') as view:
+        started = time.monotonic()
+        # 6 s: discovery itself can take up to 3 s (Fast DDS announces every 3 s after its
+        # first five tries)
+        result = run_tool('bag_replay', bag, '--fast', '--quiet', '--wait-subscribers', '6')
+        waited = time.monotonic() - started
+        view.wait_for(50)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert 'read only by live_view, which the wait does not count' in result.stderr
+    assert waited > 6.0
+    with listening_raw(['polhemus/object/pose'], name='live_view') as view:
+        result = run_tool('bag_replay', bag, '--fast', '--quiet', '--wait-subscribers', '30',
+                          '--ignore-readers')
+        view.wait_for(50)
+    assert result.returncode == 0 and 'no subscriber' not in result.stderr, result.stderr
 
 
 def test_fast_replay_of_a_truncated_bag_says_so_and_replays_the_readable_part(gap_bag,

@@ -1406,3 +1406,40 @@ def test_a_map_save_replaces_the_whole_set_or_changes_nothing(tmp_path):
     # A map with no occupied cells: the set has no object-centric PLY any more.
     save_map(OccupancyGrid(GridSpec(0.1, 0.002)), folder, 'map', 0.8)
     assert set(_map_files(folder)) == {'map.npz', 'map.ply'}
+
+
+WARM_UP_CHECK = '''
+import sys, numba, numpy as np
+from inhand_mapping import occupancy_kernels, path_kernels
+from inhand_mapping.occupancy import GridSpec, OccupancyGrid, SensorModel, warm_up
+
+def loaded():
+    return {(module.__name__, name, sig) for module in (occupancy_kernels, path_kernels)
+            for name, f in vars(module).items()
+            if isinstance(f, numba.core.registry.CPUDispatcher) for sig in f.signatures}
+
+model = SensorModel(touch_model=sys.argv[1])
+assert not loaded(), 'kernels loaded before the warm-up'
+warm_up(model, 0.005)
+after_warm_up = loaded()
+grid = OccupancyGrid(GridSpec(0.35, 0.005), model)   # a real grid and a real stroke
+rng = np.random.default_rng(1)
+points = np.cumsum(rng.normal(0, 0.0005, (480, 3)), axis=0)
+grid.integrate(points, 100.0 + np.arange(480) / 240.0, np.arange(480) % 4)
+grid.held_points()
+grid.integrate(points[:3])                            # untimed points
+grid.flush()
+print(len(after_warm_up), sorted(loaded() - after_warm_up))
+'''
+
+
+@pytest.mark.parametrize('touch_model', ['path', 'samples'])
+def test_warm_up_loads_every_kernel_a_session_calls(touch_model):
+    """occupancy_node calls warm_up at start so that the first touch does not wait for numba
+    (0.35-0.56 s): a session afterwards must need no kernel the warm-up did not load. A
+    fresh interpreter, so that no other test loaded them first."""
+    result = subprocess.run([sys.executable, '-c', WARM_UP_CHECK, touch_model],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    count, missing = result.stdout.split(' ', 1)
+    assert int(count) > 0 and missing.strip() == '[]', result.stdout

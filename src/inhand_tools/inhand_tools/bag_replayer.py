@@ -27,6 +27,8 @@ __all__ = ['BagClock', 'ReplayOptions', 'ReplayStats', 'Replayer', 'Stream', 'pl
 SUBSCRIBER_WAIT = 10.0    # s: a replay waits this long at most for a subscriber on every topic
 SETTLE = 0.5              # s: after the match, for the readers to match our writers too
 TIMED_ACK_TIMEOUT = 5.0   # s: at the end of a timed replay, wait at most this for acks
+VIEW_NODE = 'live_view'
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'   # a reader whose node's name discovery has not given yet
 SLOW_PUBLISH = 0.002      # s: a publish() that took longer was held back by a reader
 
 
@@ -40,6 +42,10 @@ class ReplayOptions:
     wait_subscribers: float | None = None   # s; None: the default of the mode
     quiet: bool = False                     # no progress line
     clock_hz: float | None = None           # publish the bag's time on /clock at this rate
+    # Readers the wait does not count as "a subscriber" (still waited for once seen): the
+    # live view reads every topic, and a replay that started on its match alone lost the
+    # graph's (all 5,400 poses of a replay, 1 run in 6).
+    ignored_readers: tuple[str, ...] = (VIEW_NODE,)
 
 
 @dataclass
@@ -183,9 +189,29 @@ class Replayer:
             return
         from inhand_tools.ros_session import wait_until
 
-        def lonely():
-            return [s.publisher.topic_name for s in self.streams.values()
-                    if s.publisher.get_subscription_count() == 0]
+        def unmatched() -> list[tuple[str, str]]:
+            """(topic, what it waits for) of the topics not ready yet: a topic is ready when
+            a reader of a node not ignored is in the graph and every reader the graph shows
+            (with a QoS our writer can match) is matched. Matched counts alone would start
+            on the live view's reader while the graph's own were not discovered yet."""
+            waiting = []
+            for stream in self.streams.values():
+                topic = stream.publisher.topic_name
+                readers = self.compatible_readers(stream)
+                counted = [name for name in readers
+                           if name not in self.options.ignored_readers and name != UNKNOWN_NODE]
+                matched = stream.publisher.get_subscription_count()
+                if not counted:
+                    waiting.append((topic, topic if not readers else
+                                    f'{topic} (read only by {", ".join(sorted(set(readers)))}, '
+                                    'which the wait does not count)'))
+                elif matched < len(readers):
+                    waiting.append((topic, f'{topic} (only {matched} of its {len(readers)} '
+                                           'subscribers matched)'))
+            return waiting
+
+        def lonely() -> list[str]:
+            return [topic for topic, _ in unmatched()]
 
         if lonely():
             limit = 'as long as it takes, Ctrl-C to stop' if timeout is None else \
@@ -193,15 +219,31 @@ class Replayer:
             print(f'bag_replay: waiting for a subscriber on {", ".join(lonely())} ({limit})',
                   file=sys.stderr, flush=True)
         if not wait_until(lambda: not lonely(), self.stop, timeout) and not self.stop.is_set():
-            print(f'bag_replay: no subscriber on {", ".join(lonely())} after {timeout:g} s: '
-                  'their messages reach nobody (--topics leaves them out, '
-                  '--wait-subscribers waits longer); starting', file=sys.stderr, flush=True)
+            said = [what for _, what in unmatched()]
+            print(f'bag_replay: no subscriber on {"; ".join(said)} after {timeout:g} s: '
+                  'what comes before one matches reaches nobody (--topics leaves topics '
+                  'out, --wait-subscribers waits longer); starting', file=sys.stderr,
+                  flush=True)
         # Our writers see the readers; the readers may not see our writers yet, and what comes
         # before that is lost to a best-effort reader (a camera topic: the one stereo pair at
         # a bag's start) and to a volatile reliable one. Let discovery settle both ways.
         self.stop.wait(SETTLE)
         if self.options.fast:
             self.warn_best_effort_readers()
+
+    def compatible_readers(self, stream: Stream) -> list[str]:
+        """The node names of the readers of the stream's topic in the graph that our writer
+        can match: a reliable reader never matches a best-effort writer, nor a
+        transient-local reader a volatile one. (Not rclpy's qos_check_compatible: the
+        graph reports a reader's unset deadline as infinite, which it calls an error.)"""
+        from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+        best_effort = stream.qos.reliability == ReliabilityPolicy.BEST_EFFORT
+        volatile = stream.qos.durability == DurabilityPolicy.VOLATILE
+        return [info.node_name for info in self.node.get_subscriptions_info_by_topic(
+                    stream.publisher.topic_name)
+                if not (best_effort and info.qos_profile.reliability == ReliabilityPolicy.RELIABLE)
+                and not (volatile
+                         and info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL)]
 
     def warn_best_effort_readers(self) -> None:
         from rclpy.qos import ReliabilityPolicy

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 __all__ = ['ProcessGroup', 'TopicWatch', 'add_view_arguments', 'call_trigger', 'executable',
-           'hold_view', 'mapping_graph', 'start_view', 'wait_for_graph_readers']
+           'hold_view', 'mapping_graph', 'start_view']
 
 
 def executable(name: str) -> str:
@@ -261,33 +261,6 @@ def start_view(group: ProcessGroup, args, namespace: str | None = None) -> str |
         ros_args += ['-r', f'__ns:={namespace}']
     group.start('view', ['live_view', *ros_args])
     return f'http://127.0.0.1:{args.http_port}/'
-
-
-def wait_for_graph_readers(topics, timeout: float = 10.0, ignore: str = 'live_view',
-                           settle: float = 0.5) -> list[str]:
-    """Until every topic has a reader that is not ``ignore``'s (the view reads every topic,
-    so a replay that waits for "a subscriber" would start before the graph's own, and a
-    volatile reader matched late misses what came first); the topics still without one."""
-    import rclpy
-    from rclpy.node import Node
-
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = Node('launch_graph_readers', context=context)
-    try:
-        names = [node.resolve_topic_name(topic) for topic in topics]
-
-        def lonely() -> list[str]:
-            return [name for name in names if not any(
-                info.node_name != ignore for info in node.get_subscriptions_info_by_topic(name))]
-        deadline = time.monotonic() + timeout
-        while lonely() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(settle)
-        return lonely()
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def hold_view(group: ProcessGroup, url: str) -> None:

@@ -70,6 +70,7 @@ from inhand_mapping.map_products import MapProducts, resume_from, save_map
 from inhand_mapping.map_updates import MapUpdates
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, OccupancyConfig
 from inhand_mapping.node_health import OccupancyActivity, OccupancyHealth
+from inhand_mapping.occupancy import warm_up
 from inhand_mapping.qos import DATA_QOS, LATCHED_QOS, UPDATES_QOS
 
 MAP_QOS = LATCHED_QOS
@@ -131,7 +132,10 @@ class OccupancyNode(Node):
             time.monotonic(), f'{spec.size:g} m cube centred at {list(spec.centre)}')
         self.diagnostics = NodeDiagnostics(self, 'occupancy map', self._report,
                                            data_count=lambda: self.activity.messages)
+        started = time.monotonic()
+        warm_up(model, spec.resolution)   # not on the first touch (occupancy.warm_up)
         self.get_logger().info(
+            f'kernels ready in {time.monotonic() - started:.2f} s; '
             f'map: {spec.cells_per_axis}^3 cells of {spec.resolution * 1000:g} mm, '
             f'{spec.size:g} m cube centred at {list(spec.centre)} in {self.frames.map_frame}; '
             f'{model.touch_model} touch model, P(Z|not O) {model.p_z_given_not_occupied:g}, '

@@ -12,9 +12,12 @@ namespace or a remapping given with ``--ros-args`` applies), with the message ty
 names (``pkg/msg/Type`` -> ``pkg.msg.Type``). The QoS is the one the bag recorded as
 offered (reliable or best effort, transient-local or volatile, the depth) and otherwise
 reliable/volatile depth 1000. Timing: the gaps between the bag's timestamps divided by
-``--rate`` (default 1), after waiting up to 10 s (``--wait-subscribers``) for a
-subscriber on every topic: a message published before a subscriber is matched never
-reaches it (the topics still without one are named, then the replay starts).
+``--rate`` (default 1), after waiting up to 10 s (``--wait-subscribers``) until every
+topic has a subscriber and every subscriber the graph shows (with a QoS that can match)
+is matched: a message published before a subscriber is matched never reaches it (the
+topics still short of one are named, then the replay starts). The live view's readers do
+not count as a topic's subscriber (``--ignore-readers``): it reads every topic, so its
+match alone would start the replay before the graph's own readers were discovered.
 ``--start-offset`` skips the bag's first seconds; ``--loop`` starts again at
 the end until Ctrl-C. A progress line goes to stderr (redrawn on a terminal, every 10%
 otherwise) and a summary to stdout at the end. A truncated MCAP bag is replayed up to
@@ -95,8 +98,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help='replay only these topics (default: all)')
     parser.add_argument('--wait-subscribers', type=non_negative_float, metavar='SECONDS',
                         help='before starting, wait up to SECONDS for a subscriber on every '
-                        'topic, so their first messages are not lost (default 10; then the '
-                        'topics without one are named and the replay starts; 0: at once)')
+                        'topic and for every subscriber the graph shows to match, so their '
+                        'first messages are not lost (default 10; then the topics short of '
+                        'one are named and the replay starts; 0: at once)')
+    parser.add_argument('--ignore-readers', nargs='*', default=list(ReplayOptions.ignored_readers),
+                        metavar='NODE', help="nodes whose readers do not count as a topic's "
+                        'subscriber in that wait (they are still waited for once seen; '
+                        f'default: {" ".join(ReplayOptions.ignored_readers)}, which reads '
+                        'every topic; none given: every reader counts)')
     parser.add_argument('--clock', type=positive_float, nargs='?', const=DEFAULT_CLOCK_HZ,
                         metavar='HZ', help="publish the bag's time on /clock, HZ times a "
                         f'second (default {DEFAULT_CLOCK_HZ:g}), for nodes with use_sim_time')
@@ -110,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(remove_ros_args(full)[1:])
     options = ReplayOptions(rate=args.rate, fast=args.fast, loop=args.loop,
                             wait_subscribers=args.wait_subscribers, quiet=args.quiet,
-                            clock_hz=args.clock)
+                            clock_hz=args.clock, ignored_readers=tuple(args.ignore_readers))
     try:
         with BagSource(args.bag) as source:
             streams = plan_streams(source, args.topics)
