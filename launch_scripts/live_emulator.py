@@ -6,7 +6,10 @@
 liberty_emulator streams on a pty (built-in motion by default: fingertips stroking a
 sphere on a swaying object; or a text recording or a bag), liberty_driver publishes
 polhemus/<name>/pose, registration_node and occupancy_node build the map. Ctrl-C (or the
-end of --duration) saves the map to --output and stops every process cleanly. --view also
+end of --duration, SIGTERM, or the terminal closing) stops the emulator and the driver
+first, waits until the graph has passed on what they sent, saves the map to --output and
+stops every process cleanly; a second Ctrl-C does not cut the save short. The occupancy
+node also saves every --autosave seconds and when it is stopped. --view also
 starts live_view: the page at http://127.0.0.1:8080/, Foxglove at ws://127.0.0.1:8765.
 """
 
@@ -19,6 +22,7 @@ from pathlib import Path
 
 from inhand_tools.launching import (
     ProcessGroup,
+    TopicWatch,
     add_view_arguments,
     call_trigger,
     mapping_graph,
@@ -27,6 +31,9 @@ from inhand_tools.launching import (
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 AUTOSAVE = 30.0   # s: the live session's map is saved this often
+QUIET = 1.0       # s without registered points after the driver stopped: the graph drained
+SOURCES = ('driver', 'emulator')   # stopped first (the driver stops the device's stream), so
+#                                   that what they sent is in the map
 
 
 def main(argv=None) -> int:
@@ -42,7 +49,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     port = f'/tmp/liberty-live-{os.getpid()}'
     args.output.mkdir(parents=True, exist_ok=True)
-    with ProcessGroup() as group:
+    from sensor_msgs.msg import PointCloud2
+    with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch:
         group.start('emulator', ['liberty_emulator', '--port', port, '--motion', args.motion])
         group.start('driver', ['liberty_driver', '--ros-args', '--params-file',
                                str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
@@ -62,8 +70,13 @@ def main(argv=None) -> int:
                 time.sleep(0.2)
         except KeyboardInterrupt:
             pass
+        group.stopping = True   # from here on a Ctrl-C only says that we are stopping
+        group.say('[launch] stopping the driver and the emulator; saving once the graph '
+                  'has drained')
+        group.stop_named(*SOURCES)
+        watch.wait_quiet(QUIET)
         ok, message = call_trigger('occupancy/save', timeout=10.0)
-        print(f'[launch] occupancy/save: {message}', flush=True)
+        group.say(f'[launch] occupancy/save: {message}')
     return 0 if ok else 1
 
 

@@ -16,7 +16,9 @@ stereo images and camera infos), so a bag recorded from a live run, which also h
 and diagnostics, replays like a driver's bag; --topics chooses. --sim-time runs the nodes
 with use_sim_time and the replay with --clock (the graph lives in the bag's time). --view
 also starts live_view (the page at http://127.0.0.1:8080/, Foxglove at ws://127.0.0.1:8765)
-and keeps the graph up after the save until Ctrl-C.
+and keeps the graph up after the save until Ctrl-C. Ctrl-C (or SIGTERM, or the terminal
+closing) during the replay stops it, saves what the graph mapped once it has drained, and
+ends with exit code 130 without pictures; a second Ctrl-C does not cut the save short.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ TEXTURE_WAIT = 120.0  # s the save waits for the stereo node's first textured ma
 QUIET_TEXTURE = 2.0  # s without a new textured map: the last one is of the final map
 
 
+EXIT_INTERRUPTED = 130   # the shell's code for a command ended by Ctrl-C
 STEREO_IMAGE_TOPIC = 'stereo/left/image_raw'
 # What the graph takes in: the driver's poses and the stereo pairs. A bag recorded from a
 # live run also holds the graph's outputs (maps, diagnostics): replaying those would wait
@@ -103,8 +106,16 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             print('[launch] the mapping nodes did not come up', file=sys.stderr)
             return 1
         clock = ['--clock'] if sim_time else []
-        code = group.run('replay', ['bag_replay', str(bag), *rate_args, *clock,
-                                    *(['--topics', *replayed] if replayed else [])])
+        try:
+            code = group.run('replay', ['bag_replay', str(bag), *rate_args, *clock,
+                                        *(['--topics', *replayed] if replayed else [])])
+        except KeyboardInterrupt:   # Ctrl-C, SIGTERM, SIGHUP: save what was mapped, no more
+            group.say('[launch] interrupted: saving what the graph mapped once it has '
+                      'drained')
+            watch.wait_quiet(QUIET)
+            ok, message = call_trigger('occupancy/save')
+            group.say(f'[launch] occupancy/save: {message}')
+            return EXIT_INTERRUPTED
         if code != 0:
             print(f'[launch] bag_replay ended with exit code {code}', file=sys.stderr)
             if code != 1:  # 1: truncated bag, replayed what could be read

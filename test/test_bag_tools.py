@@ -378,6 +378,36 @@ def test_round_trip_replay_recorded_gives_the_same_messages(gap_bag, tmp_path):
         assert [raw for _, raw in again[topic]] == [raw for _, raw in original[topic]], topic
 
 
+def test_a_recorder_killed_with_9_loses_at_most_about_a_second(tmp_path):
+    """rosbags holds the current chunk in memory: a kill -9 left a 0-byte file. The
+    recorder writes it out every second, and the bag without its footer reads record by
+    record."""
+    from inhand_common.bag_source import BagSource
+    output = tmp_path / 'killed'
+    rate, seconds = 100.0, 3.5
+    with talking() as talker, running(['bag_record', '-o', str(output),
+                                       'polhemus/thumb/pose']) as recorder:
+        publisher = talker.node.create_publisher(PoseStamped, 'polhemus/thumb/pose', KEEP_ALL)
+        talker.wait_matched(publisher)
+        time.sleep(0.5)
+        sent = []
+        for k in range(int(rate * seconds)):
+            raw = encode_pose_stamped(1000, k * 10_000_000, 'polhemus_source',
+                                      (0.01 * k, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0))
+            publisher.publish(raw)
+            sent.append(raw)
+            time.sleep(1.0 / rate)
+        recorder.popen.send_signal(signal.SIGKILL)
+        recorder.popen.wait()
+    (mcap,) = output.glob('*.mcap')
+    assert mcap.stat().st_size > 0
+    with BagSource(output) as bag:
+        got = [raw for _, _, raw in bag.messages({'polhemus/thumb/pose'})]
+        assert bag.problem and 'record by record' in bag.problem
+    assert got == sent[:len(got)]                       # what was written is whole
+    assert len(got) >= len(sent) - 2.0 * rate, (len(got), len(sent))
+
+
 def test_record_refuses_an_existing_output_unless_forced(tmp_path):
     output = tmp_path / 'taken'
     output.mkdir()

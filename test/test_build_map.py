@@ -8,6 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
+from inhand_common.bag_source import BagSource
 from inhand_common.ros_names import station_pose_topic
 from inhand_common.rotations import rotate_vectors
 from inhand_mapping.map_io import load_npz, read_ply
@@ -183,3 +184,40 @@ def test_a_bad_config_file_is_one_line_and_exit_code_2(moving_bag, tmp_path):
         result = build_map(bag, '--config', config, '--output-dir', tmp_path)
         assert result.returncode == 2, result.stderr
         assert message in result.stderr and 'Traceback' not in result.stderr
+
+
+@pytest.mark.parametrize('damage', ['length', 'garbage'])
+def test_a_damaged_bag_loses_only_the_damaged_part(tmp_path, damage):
+    """The bundled bags are one uncompressed chunk each: a message record whose length field
+    is overwritten (rosbags: OverflowError) or 200 bytes of garbage over a record (rosbags
+    ends the chunk early without a word) lost every message after it. Reading record by
+    record resyncs at the next message that parses; one line says what was skipped."""
+    import shutil
+    import struct
+    source = WORKSPACE / 'bags' / 'cat_static'
+    (mcap,) = source.glob('*.mcap')
+    data = bytearray(mcap.read_bytes())
+    with BagSource(source) as clean:
+        total = sum(1 for _ in clean.messages(set(clean.topics)))
+    # message records of the chunk: opcode 5, a sane length, another message after it
+    starts = [p for p in range(len(data) - 9) if data[p] == 5
+              and 22 <= struct.unpack_from('<Q', data, p + 1)[0] < 10_000
+              and data[p + 9 + struct.unpack_from('<Q', data, p + 1)[0]] == 5]
+    at = starts[len(starts) // 3]
+    if damage == 'length':
+        data[at + 1:at + 9] = b'\xff' * 8
+    else:
+        data[at:at + 200] = bytes(range(200))
+    bag = tmp_path / 'damaged'
+    shutil.copytree(source, bag)
+    (bag / mcap.name).write_bytes(bytes(data))
+    with BagSource(bag) as damaged:
+        read = sum(1 for _ in damaged.messages(set(damaged.topics)))
+        problem = damaged.problem
+    assert total - 3 <= read < total, (read, total)
+    assert problem and 'damaged place(s)' in problem and '\n' not in problem, problem
+    result = build_map(bag, '--config', STATIC_CONFIG, '--output-dir', tmp_path, '--name', 'm')
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert 'Traceback' not in result.stderr and 'damaged place(s)' in result.stderr
+    grid, _ = load_npz(tmp_path / 'm.npz')
+    assert grid.counts.integrated >= 3 * 1790      # of the bag's 3 x 1,800 fingertips

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -40,8 +41,21 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
-@pytest.mark.parametrize('how', ['duration', 'ctrl-c'])
-def test_live_graph_saves_the_map_and_leaves_no_orphans(tmp_path, how):
+def wait_gone(pids: list[int], timeout: float) -> list[int]:
+    """The pids still alive after waiting up to ``timeout`` s for them to end."""
+    deadline = time.monotonic() + timeout
+    while children_alive(pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return children_alive(pids)
+
+
+@pytest.mark.parametrize('how', ['duration', 'ctrl-c', 'ctrl-c-twice', 'sighup'])
+def test_live_graph_saves_the_drained_map_and_leaves_no_orphans(tmp_path, how):
+    """However the launcher is asked to stop (its --duration, Ctrl-C, a second Ctrl-C
+    during the save, the terminal closing), the driver stops first, the graph drains,
+    the save has everything (the occupancy node has nothing left to save at shutdown),
+    and no process is left."""
+    from inhand_mapping.map_io import load_npz
     args = [sys.executable, str(WORKSPACE / 'launch_scripts' / 'live_emulator.py'),
             '--output', str(tmp_path)]
     if how == 'duration':
@@ -51,14 +65,68 @@ def test_live_graph_saves_the_map_and_leaves_no_orphans(tmp_path, how):
     time.sleep(5.0)
     started = descendants(launcher.pid)
     assert len(started) >= 4, 'emulator, driver, registration and occupancy should run'
-    if how == 'ctrl-c':
+    if how != 'duration':
+        launcher.send_signal(signal.SIGHUP if how == 'sighup' else signal.SIGINT)
+    if how == 'ctrl-c-twice':
+        time.sleep(0.3)
         launcher.send_signal(signal.SIGINT)
     output, _ = launcher.communicate(timeout=60)
     assert launcher.returncode == 0, output
+    assert 'Traceback' not in output, output
+    if how == 'ctrl-c-twice':
+        assert 'SIGINT again: still stopping' in output, output
     assert (tmp_path / 'live.npz').exists() and (tmp_path / 'live.ply').exists(), output
     assert 'points integrated' in output and 'frames published' in output
-    time.sleep(0.5)
-    assert children_alive(started) == [], f'orphans left: {children_alive(started)}'
+    assert 'saved at shutdown' not in output, output
+    stopped = re.search(r'occupancy_node\]: stopped: .* (\d+) points integrated', output)
+    grid, _ = load_npz(tmp_path / 'live.npz')
+    assert stopped and grid.counts.integrated == int(stopped.group(1)) > 0, output
+    assert wait_gone(started, 5.0) == [], 'orphans left'
+
+
+def test_kill_9_of_the_launcher_leaves_no_orphans_and_the_map_is_saved(tmp_path):
+    """kill -9 gives the launcher no chance: the kernel's parent-death signal stops its
+    children, and the occupancy node saves what it has as on any SIGTERM."""
+    launcher = subprocess.Popen(
+        [sys.executable, str(WORKSPACE / 'launch_scripts' / 'live_emulator.py'),
+         '--output', str(tmp_path), '--autosave', '0'],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(5.0)
+    started = descendants(launcher.pid)
+    assert len(started) >= 4, 'emulator, driver, registration and occupancy should run'
+    launcher.kill()
+    launcher.wait()
+    assert wait_gone(started, 30.0) == [], 'orphans left'
+    assert (tmp_path / 'live.npz').exists()      # autosave off: the shutdown save
+
+
+def test_ctrl_c_during_a_replay_saves_what_was_mapped(tmp_path):
+    """Ctrl-C in the middle of a timed replay: the replay stops, what reached the graph is
+    saved, exit code 130, no pictures, nothing left running."""
+    from inhand_mapping.map_io import load_npz
+    launcher = subprocess.Popen(
+        [sys.executable, str(WORKSPACE / 'launch_scripts' / 'replay_bag.py'),
+         str(WORKSPACE / 'bags' / 'cat_static'), '--output', str(tmp_path), '--rate', '1'],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 90
+    lines = []
+    for line in launcher.stdout:          # until the replay has run a few seconds
+        lines.append(line)
+        done = re.search(r'\]\s+([\d.]+)%', line)
+        if line.startswith('[replay]') and done and float(done.group(1)) > 0:
+            break
+        assert time.monotonic() < deadline, ''.join(lines)
+    time.sleep(3.0)
+    started = descendants(launcher.pid)
+    launcher.send_signal(signal.SIGINT)
+    output, _ = launcher.communicate(timeout=60)
+    output = ''.join(lines) + output
+    assert launcher.returncode == 130, output
+    assert 'Traceback' not in output and 'interrupted: saving' in output, output
+    grid, _ = load_npz(tmp_path / 'cat_static.npz')
+    assert 0 < grid.counts.integrated < 3 * 120 * 15, grid.counts   # a part of the bag
+    assert not (tmp_path / 'figure.png').exists()
+    assert wait_gone(started, 5.0) == [], 'orphans left'
 
 
 def test_replaying_a_bag_of_a_live_run_replays_only_the_graphs_inputs(tmp_path):

@@ -5,8 +5,9 @@ No rclpy here, so bag checks run before the ROS runtime loads; used by ``build_m
 
 ``BagSource`` opens MCAP and sqlite3 bags with rosbags (a bag folder, or a bare ``.mcap`` /
 ``.db3`` file). An MCAP file that rosbags cannot open because it was cut short (a recorder
-that died, a copy that stopped) is read record by record up to the cut with
-:mod:`inhand_common.mcap_recovery`, and ``problem`` says so.
+that died, a copy that stopped), or that it stops reading at a damaged record, is read
+record by record with :mod:`inhand_common.mcap_recovery`, which skips only the damaged
+parts; ``problem`` says what was read and skipped, in one line.
 """
 
 from __future__ import annotations
@@ -114,29 +115,45 @@ class BagSource:
         mcap = self._mcap_file()
         if mcap is None:
             raise BagError(refused) from None
-        from inhand_common.mcap_recovery import RecoveryReport, recover_mcap
-        report = RecoveryReport()
         try:
-            messages = list(recover_mcap(mcap, report))
+            messages, report = self._read_record_by_record(mcap)
         except ValueError as not_mcap:
             raise BagError(f'{refused} ({not_mcap})') from None
         if not messages and not report.complete:
             raise BagError(f'{refused} (no whole message in its first {report.bytes_read} '
                            'bytes)') from None
-        messages.sort(key=lambda m: m.log_time)  # file order is time order for rosbag2
-        self._recovered = []
-        for m in messages:
-            name = relative_name(m.topic)
-            topic = self.topics.setdefault(name, BagTopic(name, m.msgtype))
+        for name, _, _, msgtype in messages:
+            topic = self.topics.setdefault(name, BagTopic(name, msgtype))
             topic.count += 1
-            self._recovered.append((name, m.log_time, m.data))
+        self._recovered = [(name, log_time, data) for name, log_time, data, _ in messages]
         if messages:
-            self.start_ns, self.end_ns = messages[0].log_time, messages[-1].log_time
+            self.start_ns, self.end_ns = messages[0][1], messages[-1][1]
+        if not report.complete or report.skipped:
+            self.problem = (f'{str(error).rstrip(".")}; '
+                            f'{self._recovery_said(report, len(messages))}, recorded QoS '
+                            'is not')
+
+    @staticmethod
+    def _read_record_by_record(mcap: Path) -> tuple[list[tuple[str, int, bytes, str]], object]:
+        """(relative topic, log time, data, type) of every readable message in time order,
+        and the RecoveryReport. ValueError if the file is not MCAP."""
+        from inhand_common.mcap_recovery import RecoveryReport, recover_mcap
+        report = RecoveryReport()
+        messages = [(relative_name(m.topic), m.log_time, m.data, m.msgtype)
+                    for m in recover_mcap(mcap, report)]
+        messages.sort(key=lambda m: m[1])  # file order is time order for rosbag2
+        return messages, report
+
+    @staticmethod
+    def _recovery_said(report, messages: int) -> str:
+        said = 'read the file record by record'
         if not report.complete:
-            self.problem = (f'{str(error).rstrip(".")}; read the file record by record up to '
-                            f'byte {report.bytes_read} of {report.file_size} '
-                            f'({report.stopped_because or "end of data"}): '
-                            f'{len(messages)} messages are readable, recorded QoS is not')
+            said += (f' up to byte {report.bytes_read} of {report.file_size} '
+                     f'({report.stopped_because or "end of data"})')
+        said += f': {messages} messages are readable'
+        if report.skipped:
+            said += f'; {report.skipped_summary()}'
+        return said
 
     @property
     def duration(self) -> float:
@@ -153,12 +170,50 @@ class BagSource:
         connections = [c for name in sorted(topics) for c in self.topics[name].connections]
         if not connections:
             return
+        last, at_last = None, 0   # the last stamp given and how many had it
+        given = 0
         try:
             for connection, timestamp, raw in self._reader.messages(connections=connections,
                                                                     start=start_ns):
+                at_last = at_last + 1 if timestamp == last else 1
+                last = timestamp
+                given += 1
                 yield relative_name(connection.topic), timestamp, raw
-        except _read_errors() as error:  # a damaged bag: keep what was read
-            self.problem = f'{type(error).__name__}: {error}'
+        except _read_errors() as error:  # a damaged bag: the rest, record by record
+            yield from self._rest_record_by_record(error, topics, start_ns, last, at_last)
+            return
+        listed = sum(c.msgcount for c in connections)
+        if start_ns is None and given < listed:
+            # Damage rosbags did not notice: it ended the chunk early.
+            yield from self._rest_record_by_record(
+                EOFError(f'{given} of the {listed} messages its summary lists were read'),
+                topics, start_ns, last, at_last)
+
+    def _rest_record_by_record(self, error: BaseException, topics: set[str],
+                               start_ns: int | None, last: int | None, at_last: int
+                               ) -> Iterator[tuple[str, int, bytes]]:
+        """After rosbags stopped at a damaged record: the messages after the ones given
+        (stamps above ``last``, and those at ``last`` past the first ``at_last``)."""
+        problem = f'{type(error).__name__}: {error}'
+        mcap = self._mcap_file()
+        if mcap is None:
+            self.problem = problem
+            return
+        try:
+            messages, report = self._read_record_by_record(mcap)
+        except ValueError:
+            self.problem = problem
+            return
+        wanted = [m for m in messages if m[0] in topics and (start_ns is None or m[1] >= start_ns)]
+        self.problem = f'{problem}; {self._recovery_said(report, len(wanted))}'
+        seen_at_last = 0
+        for name, log_time, data, _ in wanted:
+            if last is not None and log_time < last:
+                continue
+            if log_time == last and seen_at_last < at_last:
+                seen_at_last += 1
+                continue
+            yield name, log_time, data
 
     def __exit__(self, *exc) -> None:
         if self._reader is not None:

@@ -1,17 +1,24 @@
-"""Read the messages of a truncated MCAP file (a recorder that died, a copy cut short).
+"""Read the messages of a truncated or damaged MCAP file (a recorder that died, a copy cut
+short, bytes overwritten).
 
 rosbags needs the MCAP footer and summary to open a file, so a file cut short cannot be
-opened at all. MCAP is a sequence of length-prefixed records, though, so everything before
-the cut is readable: this reader walks the records in file order, decompresses chunks
-(none, lz4 or zstd, as rosbag2 writes them), and stops cleanly at the first incomplete
-record, saying where and why.
+opened at all, and it stops at the first record it cannot parse. MCAP is a sequence of
+length-prefixed records, though: this reader walks the records in file order,
+decompresses chunks (none, lz4 or zstd, as rosbag2 writes them), and at a record that does
+not parse (a length past the end, a field that makes no sense) looks for the next one that
+does, so only the damaged part is lost: at the top level the next record whose length
+fits and is followed by another (the next chunk), and inside an uncompressed chunk the
+next message record of a known channel, stamped within the chunk's time range, that is
+followed by another (a bundled bag is one chunk, so skipping whole chunks alone would lose
+it all). A compressed chunk that does not decompress is skipped whole. A record cut short
+by the end of the file ends the walk. ``RecoveryReport`` says what was skipped.
 """
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = ['McapMessage', 'RecoveryReport', 'recover_mcap']
@@ -19,6 +26,9 @@ __all__ = ['McapMessage', 'RecoveryReport', 'recover_mcap']
 MAGIC = b'\x89MCAP0\r\n'
 OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_FOOTER, OP_DATA_END = 0x03, 0x04, 0x05, 0x06, \
     0x02, 0x0F
+KNOWN_OPCODES = frozenset(range(0x01, 0x10))   # header .. data end (MCAP v0)
+MESSAGE_HEADER = 22                            # channel id, sequence, log and publish times
+COMPRESSIONS = ('', 'lz4', 'zstd')
 
 
 @dataclass
@@ -36,6 +46,16 @@ class RecoveryReport:
     file_size: int = 0
     complete: bool = False
     stopped_because: str = ''
+    skipped: list[tuple[int, int]] = field(default_factory=list)   # (file offset, bytes)
+
+    def skipped_summary(self) -> str:
+        """One line: how much was skipped where ('' when nothing was)."""
+        if not self.skipped:
+            return ''
+        places = ', '.join(f'{length} at byte {offset}' for offset, length in self.skipped[:5])
+        more = f' and {len(self.skipped) - 5} more' if len(self.skipped) > 5 else ''
+        return (f'{len(self.skipped)} damaged place(s), {sum(n for _, n in self.skipped)} '
+                f'bytes skipped ({places}{more})')
 
 
 def _string(buf: bytes, pos: int) -> tuple[str, int]:
@@ -67,22 +87,52 @@ class _Walker:
         self.schemas: dict[int, str] = {}
         self.channels: dict[int, tuple[str, int]] = {}
 
-    def records(self, buf: bytes, pos: int, end: int, top_level: bool) -> Iterator[McapMessage]:
+    def records(self, buf: bytes, pos: int, end: int, top_level: bool,
+                offset: int = 0, times: tuple[int, int] | None = None) -> Iterator[McapMessage]:
+        """The messages of the records in ``buf[pos:end]``. ``offset``: where ``buf`` starts
+        in the file (0 at the top level; None inside a decompressed chunk, where damage is
+        not looked for); ``times``: the enclosing chunk's message time range."""
         while pos < end:
             if pos + 9 > end:
                 raise EOFError(f'record header cut off at byte {pos}')
             opcode = buf[pos]
             (length,) = struct.unpack_from('<Q', buf, pos + 1)
             body_start, body_end = pos + 9, pos + 9 + length
+            if opcode not in KNOWN_OPCODES or (body_end > end and not self._at_file_end(
+                    buf, pos, end, top_level)):
+                pos = self._resync(buf, pos, end, top_level, offset, times)
+                continue
+            if body_end > end and opcode == OP_CHUNK and top_level:
+                # A chunk whose length field is damaged but whose records fit: read them and
+                # go on after them.
+                inner_end = self._chunk_records_end(buf, body_start, end)
+                if inner_end is not None:
+                    self.report.skipped.append((offset + pos + 1, 0))
+                    yield from self._chunk(buf[body_start:inner_end], offset + body_start)
+                    pos = inner_end
+                    self.report.bytes_read = pos
+                    continue
             if body_end > end:
                 cut = (f'record (opcode 0x{opcode:02x}) at byte {pos} needs {length} bytes, '
                        f'{end - body_start} are there')
                 if opcode == OP_CHUNK and top_level:
                     # An uncompressed chunk cut short still holds whole records up to the cut.
-                    yield from self._partial_chunk(buf[body_start:end])
+                    yield from self._partial_chunk(buf[body_start:end], body_start)
                 raise EOFError(cut)
             body = buf[body_start:body_end]
-            yield from self._record(opcode, body)
+            try:
+                messages = list(self._record(opcode, body, offset + body_start
+                                             if offset is not None else None))
+            except (ValueError, struct.error, EOFError, RuntimeError, LookupError):
+                if offset is None:
+                    raise
+                if top_level:      # the framing holds: skip this record whole
+                    self.report.skipped.append((offset + pos, body_end - pos))
+                    pos = body_end
+                else:
+                    pos = self._resync(buf, pos, end, top_level, offset, times)
+                continue
+            yield from messages
             pos = body_end
             if top_level:
                 self.report.bytes_read = pos
@@ -90,7 +140,66 @@ class _Walker:
                     self.report.complete = True
                     return
 
-    def _record(self, opcode: int, body: bytes) -> Iterator[McapMessage]:
+    def _chunk_records_end(self, buf: bytes, body_start: int, end: int) -> int | None:
+        """Where the records of the chunk whose body starts at ``body_start`` end, when its
+        header parses and they fit in the file and something plausible follows; else None."""
+        try:
+            compression, pos = _string(buf[body_start:end], 28)
+            (records_length,) = struct.unpack_from('<Q', buf, body_start + pos)
+        except (ValueError, struct.error):
+            return None
+        records_end = body_start + pos + 8 + records_length
+        if compression not in COMPRESSIONS or records_end > end:
+            return None
+        if records_end == end or self._plausible(buf, records_end, end, True, None):
+            return records_end
+        return None
+
+    def _at_file_end(self, buf: bytes, pos: int, end: int, top_level: bool) -> bool:
+        """A top-level record running past the end of the file is a cut, not damage, when
+        its header is plausible: a chunk or message (what a recorder was writing)."""
+        return top_level and buf[pos] in (OP_CHUNK, OP_MESSAGE)
+
+    def _plausible(self, buf: bytes, pos: int, end: int, top_level: bool,
+                   times: tuple[int, int] | None) -> bool:
+        """Whether a record that parses starts at ``pos`` and another (or the end) follows."""
+        if pos + 9 > end or buf[pos] not in KNOWN_OPCODES:
+            return False
+        (length,) = struct.unpack_from('<Q', buf, pos + 1)
+        after = pos + 9 + length
+        if after > end:
+            return False
+        if not top_level:
+            # Inside a chunk rosbag2 writes schemas, channels and messages: a message must
+            # be of a known channel and stamped within the chunk.
+            if buf[pos] != OP_MESSAGE or length < MESSAGE_HEADER:
+                return False
+            channel, _, log_time = struct.unpack_from('<HIQ', buf, pos + 9)
+            if channel not in self.channels or (times is not None and not
+                                                times[0] <= log_time <= times[1]):
+                return False
+        elif buf[pos] == OP_CHUNK:
+            try:
+                compression, _ = _string(buf[pos + 9:after], 28)
+            except (ValueError, struct.error):
+                return False
+            if compression not in COMPRESSIONS:
+                return False
+        return after == end or (after + 9 <= end and buf[after] in KNOWN_OPCODES)
+
+    def _resync(self, buf: bytes, pos: int, end: int, top_level: bool, offset: int | None,
+                times: tuple[int, int] | None) -> int:
+        """The next position after ``pos`` where a plausible record starts (``end`` if
+        none); the bytes passed over are noted as skipped."""
+        if offset is None:
+            raise ValueError(f'damaged record at byte {pos} of a decompressed chunk')
+        start = pos
+        pos += 1
+        while pos < end and not self._plausible(buf, pos, end, top_level, times):
+            pos += 1
+        self.report.skipped.append((offset + start, pos - start))
+        return pos
+    def _record(self, opcode: int, body: bytes, offset: int | None) -> Iterator[McapMessage]:
         if opcode == OP_SCHEMA:
             (schema_id,) = struct.unpack_from('<H', body, 0)
             name, _ = _string(body, 2)
@@ -106,25 +215,43 @@ class _Walker:
                 self.report.messages += 1
                 yield McapMessage(topic, self.schemas.get(schema_id, ''), log_time, body[22:])
         elif opcode == OP_CHUNK:
-            yield from self._chunk(body)
+            yield from self._chunk(body, offset)
 
-    def _partial_chunk(self, body: bytes) -> Iterator[McapMessage]:
+    def _partial_chunk(self, body: bytes, offset: int) -> Iterator[McapMessage]:
         try:
+            start, end_time = struct.unpack_from('<QQ', body, 0)
             compression, pos = _string(body, 28)
         except (ValueError, struct.error):
             return
         if compression != '':
             return  # a compressed stream cut short cannot be decoded
         try:
-            yield from self.records(body, pos + 8, len(body), top_level=False)
+            yield from self.records(body, pos + 8, len(body), top_level=False, offset=offset,
+                                    times=(start, end_time))
         except (EOFError, ValueError, struct.error):
             return  # the last record is the one cut short
 
-    def _chunk(self, body: bytes) -> Iterator[McapMessage]:
-        _, _, size, _ = struct.unpack_from('<QQQI', body, 0)
+    def _chunk(self, body: bytes, offset: int | None) -> Iterator[McapMessage]:
+        start, end_time, size, _ = struct.unpack_from('<QQQI', body, 0)
         compression, pos = _string(body, 28)
+        if compression not in COMPRESSIONS:
+            raise ValueError(f'unsupported chunk compression {compression!r}')
         (records_length,) = struct.unpack_from('<Q', body, pos)
-        records = _decompress(body[pos + 8:pos + 8 + records_length], compression, size)
+        records_start = pos + 8
+        if records_start + records_length > len(body):
+            raise ValueError('chunk records run past the chunk')
+        if compression == '':
+            # Damage inside is looked for record by record (offsets: the file's).
+            yield from self.records(body, records_start, records_start + records_length,
+                                    top_level=False,
+                                    offset=None if offset is None else offset,
+                                    times=(start, end_time))
+            return
+        try:
+            records = _decompress(body[records_start:records_start + records_length],
+                                  compression, size)
+        except Exception as error:   # zstd, lz4: each its own error type
+            raise ValueError(f'chunk does not decompress: {error}') from None
         yield from self.records(records, 0, len(records), top_level=False)
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import signal
 import sys
-import threading
 from collections.abc import Callable, Sequence
 
 import rclpy
@@ -21,6 +20,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from inhand_common.blas_threads import single_threaded_blas
 from inhand_common.parameters import ParameterError, read_parameter_file
+from inhand_common.stop_flag import StopFlag
 
 __all__ = ['EXIT_BAD_PARAMETERS', 'run_node']
 
@@ -56,8 +56,8 @@ def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | Non
     except ParameterError as error:
         print(f'{name}: {error.problems[0]}', file=sys.stderr)
         return EXIT_BAD_PARAMETERS
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set())
+    stop = StopFlag()   # not a threading.Event (stop_flag.py)
+    previous = {sig: signal.signal(sig, stop.set)
                 for sig in (signal.SIGINT, signal.SIGTERM)}
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None

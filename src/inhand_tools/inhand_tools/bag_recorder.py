@@ -27,6 +27,8 @@ DISCOVERY_PERIOD = 0.2   # s between looks at the graph for topics still to subs
 DRAIN_IDLE = 0.05        # s: spin_once timeout while draining
 QUEUE_EMPTY = 0.002      # s: a spin_once that waited this long found the queue empty
 DRAIN_MAX = 2.0          # s: never drain longer than this
+FLUSH_PERIOD = 1.0       # s: what was recorded reaches the file this often (a kill -9 loses
+#                          at most this much; rosbags would hold up to 1 MB in memory)
 QUIET_TOPICS = ('/rosout', '/parameter_events')
 BAG_FILES = ('.mcap', '.db3', '.yaml', '.zstd')
 
@@ -71,6 +73,21 @@ class Recorder:
         self.errors: list[str] = []
         self.first_subscription: float | None = None
         self._subscriptions = []
+
+    def flush(self) -> None:
+        """Write what is held in memory to the file: rosbags' MCAP writer keeps the
+        current chunk (up to 1 MB) in memory until it is full or the bag is closed, so a
+        recorder killed with -9 left a 0-byte file. Closing the chunk early writes it and
+        its message indexes; without the footer a kill leaves, the bag is read record by
+        record (bag_source.py). Uses the writer's storage object, not a public API: when
+        it changes, nothing is flushed early."""
+        storage = getattr(self.writer, 'storage', None)
+        chunk = getattr(storage, 'chunk', None)
+        bio = getattr(getattr(chunk, 'bio', None), 'tell', None)
+        if bio is None or not bio() or not callable(getattr(storage, 'close_chunk', None)):
+            return
+        storage.close_chunk()
+        storage.bio.flush()
 
     def waiting_for(self) -> list[str]:
         return [t for t in self.requested if t not in self.counts]
@@ -198,9 +215,13 @@ def _record_until_stopped(executor, recorder: Recorder, stop, request: RecordReq
         print(f'bag_record: waiting for {", ".join(recorder.waiting_for())} to appear '
               'with a publisher', file=sys.stderr, flush=True)
     next_look = time.monotonic() + DISCOVERY_PERIOD
+    next_flush = time.monotonic() + FLUSH_PERIOD
     while not stop.is_set() and not recorder.errors:
         executor.spin_once(timeout_sec=0.05)
         now = time.monotonic()
+        if now >= next_flush:
+            recorder.flush()
+            next_flush = now + FLUSH_PERIOD
         if now >= next_look and (recorder.waiting_for() or request.record_all):
             recorder.discover()
             next_look = now + DISCOVERY_PERIOD

@@ -3,9 +3,12 @@
 The pip runtime has no ``launch``; the launch scripts in ``launch_scripts/`` are Python
 files built on this module. A :class:`ProcessGroup` starts each process in a session of
 its own, prefixes its output with its name, and on exit (normal end, an exception,
-Ctrl-C or SIGTERM) stops them in reverse order of start: SIGINT first (each node's
-``close()`` runs, the driver sends ``P``), SIGKILL after a grace period. No process
-outlives the launch script.
+Ctrl-C, SIGTERM, or SIGHUP when the terminal closes) stops them in reverse order of start:
+SIGINT first (each node's ``close()`` runs, the driver sends ``P``, the occupancy node
+saves), SIGKILL after a grace period. The first signal interrupts the launch script; those
+after it only say that it is stopping, so a second Ctrl-C does not cut a save short. No
+process outlives the launch script: were it killed with ``kill -9``, the kernel sends each
+child SIGTERM (parent_death.py).
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
+
+from inhand_tools.parent_death import command_with_parent_death
 
 __all__ = ['ProcessGroup', 'TopicWatch', 'add_view_arguments', 'call_trigger', 'executable',
            'hold_view', 'mapping_graph', 'start_view']
@@ -39,16 +44,19 @@ def executable(name: str) -> str:
     raise FileNotFoundError(f'executable {name!r} not found (bootstrap the workspace first)')
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
 class ProcessGroup:
     def __init__(self, grace: float = 10.0, stream=sys.stdout):
         self.grace = grace
         self.stream = stream
         self.processes: list[tuple[str, subprocess.Popen]] = []
+        self.stopping = False      # a stop signal came, or the group is stopping its processes
         self._lock = threading.Lock()
 
     def __enter__(self) -> ProcessGroup:
-        self._previous = {sig: signal.signal(sig, self._on_signal)
-                          for sig in (signal.SIGINT, signal.SIGTERM)}
+        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in STOP_SIGNALS}
         return self
 
     def __exit__(self, *exc) -> None:
@@ -57,23 +65,39 @@ class ProcessGroup:
             signal.signal(sig, handler)
 
     def _on_signal(self, signum, _frame) -> None:
+        if self.stopping:
+            self.say(f'[launch] {signal.Signals(signum).name} again: still stopping; each '
+                     f'process saves and ends on its own (killed after {self.grace:g} s)')
+            return
+        self.stopping = True
         raise KeyboardInterrupt(f'signal {signum}')
 
+    def say(self, text: str) -> None:
+        """A line on the launch's output; nothing when that output is gone (the terminal
+        closed: SIGHUP), so that stopping goes on."""
+        with self._lock:
+            try:
+                self.stream.write(text + '\n')
+                self.stream.flush()
+            except (OSError, ValueError):
+                pass
+
     def start(self, name: str, args: Sequence[str], env: dict | None = None) -> subprocess.Popen:
-        """Start ``args`` (first element: an executable name or path) as ``name``."""
+        """Start ``args`` (first element: an executable name or path) as ``name``. From the
+        main thread: the parent-death signal follows the thread that started the child."""
         command = [executable(args[0]) if os.sep not in args[0] else args[0], *args[1:]]
-        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                   stdin=subprocess.DEVNULL, env=env, start_new_session=True,
-                                   text=True, bufsize=1)
+        process = subprocess.Popen(command_with_parent_death(command), stdout=subprocess.PIPE,
+                                   stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
+                                   start_new_session=True, text=True, bufsize=1)
         threading.Thread(target=self._pump, args=(name, process), daemon=True).start()
         self.processes.append((name, process))
         return process
 
     def _pump(self, name: str, process: subprocess.Popen) -> None:
+        # Read to the end even when our output is gone: a child blocked on a full pipe
+        # would never finish saving.
         for line in process.stdout:
-            with self._lock:
-                self.stream.write(f'[{name}] {line}')
-                self.stream.flush()
+            self.say(f'[{name}] {line.rstrip()}')
 
     def run(self, name: str, args: Sequence[str], timeout: float | None = None) -> int:
         """Start ``args``, wait for it to end, return its exit code."""
@@ -92,14 +116,21 @@ class ProcessGroup:
             try:
                 process.wait(self.grace)
             except subprocess.TimeoutExpired:
-                with self._lock:
-                    self.stream.write(f'[launch] {name} did not stop within {self.grace:g} s: '
-                                      'killing it\n')
+                self.say(f'[launch] {name} did not stop within {self.grace:g} s: killing it')
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
         return process.returncode
 
+    def stop_named(self, *names: str) -> None:
+        """Stop the processes started under these names, in this order (the sources of a
+        graph first, so that what they sent reaches the map before it is saved)."""
+        for wanted in names:
+            for name, process in self.processes:
+                if name == wanted:
+                    self.stop(name, process)
+
     def stop_all(self) -> None:
+        self.stopping = True
         for name, process in reversed(self.processes):
             self.stop(name, process)
         time.sleep(0.05)  # let the output threads print the last lines

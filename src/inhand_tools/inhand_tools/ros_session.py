@@ -22,35 +22,10 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from inhand_common.stop_flag import StopFlag
+
 __all__ = ['InvalidTopicName', 'RosSession', 'StopFlag', 'graph_types', 'resolve_topic',
            'wait_until']
-
-
-class StopFlag:
-    """Set from a signal handler, polled by the loops.
-
-    A plain flag rather than ``threading.Event``: ``Event.set()`` takes a lock that the
-    interrupted main thread may be holding inside ``Event.wait()``, a rare deadlock.
-    """
-
-    def __init__(self):
-        self._set = False
-
-    def set(self) -> None:
-        self._set = True
-
-    def is_set(self) -> bool:
-        return self._set
-
-    def wait(self, timeout: float | None = None) -> bool:
-        """Sleep up to ``timeout`` (forever if None) in short slices; True if set."""
-        end = None if timeout is None else time.monotonic() + timeout
-        while not self._set:
-            left = 0.05 if end is None else end - time.monotonic()
-            if left <= 0:
-                break
-            time.sleep(min(left, 0.05))
-        return self._set
 
 
 class RosSession:

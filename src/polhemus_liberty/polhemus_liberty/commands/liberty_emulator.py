@@ -21,6 +21,7 @@ import threading
 import time
 
 from inhand_common.cli_types import command_parser, positive_float
+from inhand_common.stop_flag import StopFlag
 from polhemus_liberty.emulator import LibertyEmulator
 from polhemus_liberty.motion import open_motion_source
 
@@ -90,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _console(emulator: LibertyEmulator, done: threading.Event) -> None:
+def _console(emulator: LibertyEmulator, done: StopFlag) -> None:
     for line in sys.stdin:
         words = line.split()
         if not words:
@@ -119,9 +120,9 @@ def main(argv=None) -> int:
         return 2
     emulator = LibertyEmulator(motion, args.port, stations=tuple(args.stations),
                                rate_override=args.rate)
-    done = threading.Event()
+    done = StopFlag()   # not a threading.Event (stop_flag.py)
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
+        signal.signal(sig, done.set)
     emulator.start()
     print(f'liberty_emulator: Liberty on {emulator.port} -> {emulator.link.slave_name}, '
           f'stations {args.stations}, motion {args.motion}', flush=True)
