@@ -7,6 +7,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -62,7 +63,16 @@ def test_live_graph_saves_the_drained_map_and_leaves_no_orphans(tmp_path, how):
         args += ['--duration', '6']
     launcher = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 text=True)
-    time.sleep(5.0)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(launcher.stdout), daemon=True)
+    reader.start()
+    # Points must reach the map before the stop (a loaded machine took over 5 s to start
+    # the graph): the occupancy node and the launcher's watch read registration/points.
+    deadline = time.monotonic() + 60
+    while not any('registration/points: 2 subscriber(s)' in line for line in list(lines)):
+        assert time.monotonic() < deadline and launcher.poll() is None, ''.join(lines)
+        time.sleep(0.1)
+    time.sleep(2.0)
     started = descendants(launcher.pid)
     assert len(started) >= 4, 'emulator, driver, registration and occupancy should run'
     if how != 'duration':
@@ -70,7 +80,9 @@ def test_live_graph_saves_the_drained_map_and_leaves_no_orphans(tmp_path, how):
     if how == 'ctrl-c-twice':
         time.sleep(0.3)
         launcher.send_signal(signal.SIGINT)
-    output, _ = launcher.communicate(timeout=60)
+    launcher.wait(60)
+    reader.join(10)
+    output = ''.join(lines)
     assert launcher.returncode == 0, output
     assert 'Traceback' not in output, output
     if how == 'ctrl-c-twice':
