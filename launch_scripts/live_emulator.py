@@ -24,8 +24,8 @@ from inhand_tools.launching import (
     ProcessGroup,
     TopicWatch,
     add_view_arguments,
-    call_trigger,
     mapping_graph,
+    save_when_drained,
     start_view,
 )
 
@@ -70,13 +70,9 @@ def main(argv=None) -> int:
                 time.sleep(0.2)
         except KeyboardInterrupt:
             pass
-        group.stopping = True   # from here on a Ctrl-C only says that we are stopping
         group.say('[launch] stopping the driver and the emulator; saving once the graph '
                   'has drained')
-        group.stop_named(*SOURCES)
-        watch.wait_quiet(QUIET)
-        ok, message = call_trigger('occupancy/save', timeout=10.0)
-        group.say(f'[launch] occupancy/save: {message}')
+        ok, _ = save_when_drained(group, watch, QUIET, SOURCES, timeout=10.0)
     return 0 if ok else 1
 
 

@@ -39,6 +39,7 @@ from inhand_tools.launching import (
     call_trigger,
     hold_view,
     mapping_graph,
+    save_when_drained,
     start_view,
 )
 
@@ -112,9 +113,7 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
         except KeyboardInterrupt:   # Ctrl-C, SIGTERM, SIGHUP: save what was mapped, no more
             group.say('[launch] interrupted: saving what the graph mapped once it has '
                       'drained')
-            watch.wait_quiet(QUIET)
-            ok, message = call_trigger('occupancy/save')
-            group.say(f'[launch] occupancy/save: {message}')
+            save_when_drained(group, watch, QUIET)
             return EXIT_INTERRUPTED
         if code != 0:
             print(f'[launch] bag_replay ended with exit code {code}', file=sys.stderr)

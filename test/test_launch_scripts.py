@@ -50,6 +50,44 @@ def wait_gone(pids: list[int], timeout: float) -> list[int]:
     return children_alive(pids)
 
 
+class LiveLauncher:
+    """live_emulator.py running, its output read as it comes."""
+
+    def __init__(self, *args: str):
+        self.popen = subprocess.Popen(
+            [sys.executable, str(WORKSPACE / 'launch_scripts' / 'live_emulator.py'), *args],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=lambda: self.lines.extend(self.popen.stdout),
+                                        daemon=True)
+        self._reader.start()
+
+    def wait_mapping(self, after: float = 2.0) -> None:
+        """Until registered points flow (a loaded machine took over 5 s to start the graph,
+        and the subscribers of registration/points matched before the driver streamed),
+        then ``after`` seconds of mapping."""
+        from ros_helpers import CloudCounter
+        counter = CloudCounter('registration/points')
+        try:
+            deadline = time.monotonic() + 60
+            while counter.points == 0:
+                assert time.monotonic() < deadline and self.popen.poll() is None, \
+                    self.output()
+                time.sleep(0.1)
+        finally:
+            counter.close()
+        time.sleep(after)
+
+    def output(self) -> str:
+        return ''.join(self.lines)
+
+    def wait(self, timeout: float) -> str:
+        """Until it ends; its whole output."""
+        self.popen.wait(timeout)
+        self._reader.join(10)
+        return self.output()
+
+
 @pytest.mark.parametrize('how', ['duration', 'ctrl-c', 'ctrl-c-twice', 'sighup'])
 def test_live_graph_saves_the_drained_map_and_leaves_no_orphans(tmp_path, how):
     """However the launcher is asked to stop (its --duration, Ctrl-C, a second Ctrl-C
@@ -57,22 +95,10 @@ def test_live_graph_saves_the_drained_map_and_leaves_no_orphans(tmp_path, how):
     the save has everything (the occupancy node has nothing left to save at shutdown),
     and no process is left."""
     from inhand_mapping.map_io import load_npz
-    args = [sys.executable, str(WORKSPACE / 'launch_scripts' / 'live_emulator.py'),
-            '--output', str(tmp_path)]
-    if how == 'duration':
-        args += ['--duration', '6']
-    launcher = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                text=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(launcher.stdout), daemon=True)
-    reader.start()
-    # Points must reach the map before the stop (a loaded machine took over 5 s to start
-    # the graph): the occupancy node and the launcher's watch read registration/points.
-    deadline = time.monotonic() + 60
-    while not any('registration/points: 2 subscriber(s)' in line for line in list(lines)):
-        assert time.monotonic() < deadline and launcher.poll() is None, ''.join(lines)
-        time.sleep(0.1)
-    time.sleep(2.0)
+    live = LiveLauncher('--output', str(tmp_path),
+                        *(['--duration', '6'] if how == 'duration' else []))
+    live.wait_mapping()
+    launcher = live.popen
     started = descendants(launcher.pid)
     assert len(started) >= 4, 'emulator, driver, registration and occupancy should run'
     if how != 'duration':
@@ -80,9 +106,7 @@ def test_live_graph_saves_the_drained_map_and_leaves_no_orphans(tmp_path, how):
     if how == 'ctrl-c-twice':
         time.sleep(0.3)
         launcher.send_signal(signal.SIGINT)
-    launcher.wait(60)
-    reader.join(10)
-    output = ''.join(lines)
+    output = live.wait(60)
     assert launcher.returncode == 0, output
     assert 'Traceback' not in output, output
     if how == 'ctrl-c-twice':
@@ -99,11 +123,9 @@ def test_live_graph_saves_the_drained_map_and_leaves_no_orphans(tmp_path, how):
 def test_kill_9_of_the_launcher_leaves_no_orphans_and_the_map_is_saved(tmp_path):
     """kill -9 gives the launcher no chance: the kernel's parent-death signal stops its
     children, and the occupancy node saves what it has as on any SIGTERM."""
-    launcher = subprocess.Popen(
-        [sys.executable, str(WORKSPACE / 'launch_scripts' / 'live_emulator.py'),
-         '--output', str(tmp_path), '--autosave', '0'],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    time.sleep(5.0)
+    live = LiveLauncher('--output', str(tmp_path), '--autosave', '0')
+    live.wait_mapping()          # the shutdown save needs points in the map
+    launcher = live.popen
     started = descendants(launcher.pid)
     assert len(started) >= 4, 'emulator, driver, registration and occupancy should run'
     launcher.kill()

@@ -99,7 +99,7 @@ class _Walker:
             (length,) = struct.unpack_from('<Q', buf, pos + 1)
             body_start, body_end = pos + 9, pos + 9 + length
             if opcode not in KNOWN_OPCODES or (body_end > end and not self._at_file_end(
-                    buf, pos, end, top_level)):
+                    buf, pos, top_level)):
                 pos = self._resync(buf, pos, end, top_level, offset, times)
                 continue
             if body_end > end and opcode == OP_CHUNK and top_level:
@@ -155,7 +155,7 @@ class _Walker:
             return records_end
         return None
 
-    def _at_file_end(self, buf: bytes, pos: int, end: int, top_level: bool) -> bool:
+    def _at_file_end(self, buf: bytes, pos: int, top_level: bool) -> bool:
         """A top-level record running past the end of the file is a cut, not damage, when
         its header is plausible: a chunk or message (what a recorder was writing)."""
         return top_level and buf[pos] in (OP_CHUNK, OP_MESSAGE)
@@ -199,6 +199,7 @@ class _Walker:
             pos += 1
         self.report.skipped.append((offset + start, pos - start))
         return pos
+
     def _record(self, opcode: int, body: bytes, offset: int | None) -> Iterator[McapMessage]:
         if opcode == OP_SCHEMA:
             (schema_id,) = struct.unpack_from('<H', body, 0)
@@ -234,8 +235,6 @@ class _Walker:
     def _chunk(self, body: bytes, offset: int | None) -> Iterator[McapMessage]:
         start, end_time, size, _ = struct.unpack_from('<QQQI', body, 0)
         compression, pos = _string(body, 28)
-        if compression not in COMPRESSIONS:
-            raise ValueError(f'unsupported chunk compression {compression!r}')
         (records_length,) = struct.unpack_from('<Q', body, pos)
         records_start = pos + 8
         if records_start + records_length > len(body):
@@ -243,14 +242,12 @@ class _Walker:
         if compression == '':
             # Damage inside is looked for record by record (offsets: the file's).
             yield from self.records(body, records_start, records_start + records_length,
-                                    top_level=False,
-                                    offset=None if offset is None else offset,
-                                    times=(start, end_time))
+                                    top_level=False, offset=offset, times=(start, end_time))
             return
         try:
             records = _decompress(body[records_start:records_start + records_length],
                                   compression, size)
-        except Exception as error:   # zstd, lz4: each its own error type
+        except Exception as error:   # zstd, lz4: each its own error type; ours: unsupported
             raise ValueError(f'chunk does not decompress: {error}') from None
         yield from self.records(records, 0, len(records), top_level=False)
 

@@ -83,8 +83,8 @@ class Recorder:
         it changes, nothing is flushed early."""
         storage = getattr(self.writer, 'storage', None)
         chunk = getattr(storage, 'chunk', None)
-        bio = getattr(getattr(chunk, 'bio', None), 'tell', None)
-        if bio is None or not bio() or not callable(getattr(storage, 'close_chunk', None)):
+        held = getattr(getattr(chunk, 'bio', None), 'tell', None)   # bytes in the chunk
+        if held is None or not held() or not callable(getattr(storage, 'close_chunk', None)):
             return
         storage.close_chunk()
         storage.bio.flush()

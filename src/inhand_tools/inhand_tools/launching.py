@@ -26,7 +26,7 @@ from pathlib import Path
 from inhand_tools.parent_death import command_with_parent_death
 
 __all__ = ['ProcessGroup', 'TopicWatch', 'add_view_arguments', 'call_trigger', 'executable',
-           'hold_view', 'mapping_graph', 'start_view']
+           'hold_view', 'mapping_graph', 'save_when_drained', 'start_view']
 
 
 def executable(name: str) -> str:
@@ -292,6 +292,20 @@ def start_view(group: ProcessGroup, args, namespace: str | None = None) -> str |
         ros_args += ['-r', f'__ns:={namespace}']
     group.start('view', ['live_view', *ros_args])
     return f'http://127.0.0.1:{args.http_port}/'
+
+
+def save_when_drained(group: ProcessGroup, watch: TopicWatch, quiet: float,
+                      sources: Sequence[str] = (), timeout: float = 30.0) -> tuple[bool, str]:
+    """Stop the graph's ``sources`` (in this order), wait until ``watch`` has been quiet for
+    ``quiet`` s (what they sent has reached the map), then call ``occupancy/save`` and say
+    its answer (``timeout``: see call_trigger); (success, message). From here on a signal
+    only says that we are stopping."""
+    group.stopping = True
+    group.stop_named(*sources)
+    watch.wait_quiet(quiet)
+    ok, message = call_trigger('occupancy/save', timeout=timeout)
+    group.say(f'[launch] occupancy/save: {message}')
+    return ok, message
 
 
 def hold_view(group: ProcessGroup, url: str) -> None:
