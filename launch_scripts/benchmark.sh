@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|latency|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|latency|fuzz|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -26,6 +26,10 @@
 #   latency            live-view latency: poses published at 240 Hz x 4 in real time ->
 #                      the cell in occupancy/updates, p50/p95 (test/benchmarks/
 #                      bench_live_latency.py: --duration S, --seed N)
+#   fuzz               the hypothesis properties of test/test_fuzz.py (Liberty parser, PoseStamped
+#                      and PointCloud2 decoders, NPZ and PLY readers, parameter checks) on a
+#                      million random inputs (test/benchmarks/fuzz.py: --inputs N, --jobs J,
+#                      --round R, --targets NAME...)
 #   all                every benchmark in turn, each with the same options
 # Examples:
 #   bash launch_scripts/benchmark.sh --seconds 20
@@ -43,8 +47,9 @@ declare -A BENCHMARKS=(
   [texture]=bench_texture.py
   [quality]=bench_quality.py
   [latency]=bench_live_latency.py
+  [fuzz]=fuzz.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags texture quality latency)
+ORDER=(liberty mapping replay stereo stereo-bags texture quality latency fuzz)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -104,7 +104,10 @@ class ParamSpec:
 
     def _coerce_scalar(self, value: Any) -> Any:
         if self.element_type is float and isinstance(value, int) and not isinstance(value, bool):
-            return float(value)
+            try:
+                return float(value)
+            except OverflowError:
+                return value  # an integer beyond any float: refused as not a number in range
         return value
 
     def problem(self, value: Any) -> str | None:

@@ -33,8 +33,10 @@ Both are written atomically (temporary file, then rename).
 from __future__ import annotations
 
 import json
+import math
 import os
 import zipfile
+import zlib
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 from dataclasses import asdict, dataclass, fields
@@ -65,7 +67,9 @@ FilePath: TypeAlias = str | os.PathLike[str]
 Writer: TypeAlias = Callable[[FilePath], AbstractContextManager[BinaryIO]]
 
 FORMAT_VERSION = 2
-SENSOR_MODEL_FIELDS = tuple(f.name for f in fields(SensorModel))
+# What numpy, zipfile and zlib raise for a foreign or damaged file, or a missing key.
+_UNREADABLE = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error,
+               NotImplementedError)
 # Version 1 maps were built with every sample a full measurement and eq. 3 at cell centres.
 VERSION_1_MODEL = {'distance_to': 'centre', 'evidence_rate': 0.0, 'visit_gap': 0.0}
 # Maps saved before the path model had samples as their only touch model.
@@ -181,29 +185,67 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
         with data:
             metadata: dict[str, Any] = json.loads(bytes(data['metadata']).decode())
             arrays = {k: data[k] for k in ('log_odds', 'hits', 'first_touch')}
-    # what numpy and zipfile raise for a foreign or damaged file, a missing key
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as error:
+    except _UNREADABLE as error:
         raise ValueError(f'{path}: not a map saved by this software '
                          f'({type(error).__name__}: {error})') from None
+    if not isinstance(metadata, dict):
+        raise ValueError(f'{path}: not a map saved by this software (its metadata is a '
+                         f'{type(metadata).__name__}, not a mapping)')
     if metadata.get('format_version') == 1:
         metadata = {**VERSION_1_MODEL, **metadata, 'format_version': FORMAT_VERSION}
     if metadata.get('format_version') != FORMAT_VERSION:
         raise ValueError(f'{path}: map format {metadata.get("format_version")}, '
                          f'this software reads {FORMAT_VERSION}')
-    spec = GridSpec(metadata['size'], metadata['resolution'], tuple(metadata['centre']))
+    try:
+        grid = _grid_of(metadata, arrays)
+    # what a damaged or foreign metadata entry makes the constructors raise
+    except (TypeError, ValueError, KeyError, OverflowError) as error:
+        raise ValueError(f'{path}: damaged map ({error})') from None
+    return grid, metadata
+
+
+def _typed(name: str, value: Any, default: Any) -> Any:
+    """A sensor-model value from a file, of its field's type (an int where a float goes)."""
+    if isinstance(default, float) and type(value) is int:
+        value = float(value)
+    if type(value) is not type(default) or (isinstance(value, float) and not math.isfinite(value)):
+        raise ValueError(f'{name} is {value!r}, expected a finite {type(default).__name__}')
+    return value
+
+
+def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> OccupancyGrid:
+    """The grid the metadata and arrays of a map file describe; ValueError, TypeError or
+    KeyError when they do not fit together. Shapes and kinds are checked before the grid
+    is allocated, so a damaged size cannot ask for more memory than the file holds."""
+    centre = [float(v) for v in metadata['centre']]
+    if len(centre) != 3:
+        raise ValueError(f'centre {centre} is not 3 coordinates')
+    spec = GridSpec(float(metadata['size']), float(metadata['resolution']),
+                    (centre[0], centre[1], centre[2]))
+    kinds = {'log_odds': 'f', 'hits': 'ui', 'first_touch': 'f'}
+    for name, array in arrays.items():
+        if array.shape != spec.shape or array.dtype.kind not in kinds[name]:
+            raise ValueError(f'{name} is {array.dtype} {array.shape}, the metadata says a '
+                             f'{spec.shape} grid')
+    if np.isnan(arrays['log_odds']).any():
+        raise ValueError('log_odds holds NaN')
+    if arrays['hits'].size and (arrays['hits'].min() < 0 or
+                                arrays['hits'].max() > np.iinfo(np.uint32).max):
+        raise ValueError('hits outside 0..2^32-1')
     # The path model's parameters, absent from earlier maps, take their defaults.
     known = {**BEFORE_PATH_MODEL, **metadata}
-    model = SensorModel(**{name: known[name] for name in SENSOR_MODEL_FIELDS if name in known})
+    model = SensorModel(**{field.name: _typed(field.name, known[field.name], field.default)
+                           for field in fields(SensorModel) if field.name in known})
+    counts = IntegrationCounts(**metadata['counts'])
+    if not all(isinstance(v, int) and v >= 0 for v in vars(counts).values()):
+        raise ValueError(f'counts {vars(counts)} are not counts')
     grid = OccupancyGrid(spec, model)
-    if arrays['log_odds'].shape != spec.shape:
-        raise ValueError(f'{path}: grid shape {arrays["log_odds"].shape} does not match '
-                         f'its metadata {spec.shape}')
     grid.log_odds[...] = arrays['log_odds']
     grid.hits[...] = arrays['hits']
     grid.first_touch[...] = arrays['first_touch']
     grid.refresh()
-    grid.counts = IntegrationCounts(**metadata['counts'])
-    return grid, metadata
+    grid.counts = counts
+    return grid
 
 
 def load_local_maps(path: FilePath) -> dict[str, NDArray[np.float64]]:
@@ -214,7 +256,7 @@ def load_local_maps(path: FilePath) -> dict[str, NDArray[np.float64]]:
         with np.load(path, allow_pickle=False) as data:
             local = {name: np.asarray(data[f'local_{name}'], dtype=np.float64)
                      for name in LOCAL_MAPS if f'local_{name}' in data.files}
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as error:
+    except _UNREADABLE as error:
         raise ValueError(f'{path}: its local maps cannot be read '
                          f'({type(error).__name__}: {error})') from None
     for name, values in local.items():
@@ -233,7 +275,7 @@ def load_colours(path: FilePath) -> GridColours | None:
             if 'rgb' not in data.files:
                 return None
             rgb, textured = data['rgb'], data['textured']
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as error:
+    except _UNREADABLE as error:
         raise ValueError(f'{path}: its colours cannot be read '
                          f'({type(error).__name__}: {error})') from None
     try:
@@ -293,7 +335,11 @@ _PLY_TYPES = {'float': '<f4', 'float32': '<f4', 'double': '<f8', 'float64': '<f8
 
 
 def read_ply(path: FilePath) -> Records:
-    """Vertices of a binary little-endian PLY file with scalar properties (structured array)."""
+    """Vertices of a binary little-endian PLY file with scalar properties (structured array).
+
+    ValueError naming the file and what is wrong for anything else: another format, a list
+    property, a damaged header line, fewer vertices than the header promises.
+    """
     with open(path, 'rb') as stream:
         if stream.readline().strip() != b'ply':
             raise ValueError(f'{path}: not a PLY file')
@@ -304,25 +350,37 @@ def read_ply(path: FilePath) -> Records:
             line = stream.readline()
             if not line:
                 raise ValueError(f'{path}: PLY header has no end_header')
-            words = line.decode('ascii', 'replace').split()
-            if not words:
-                continue
-            if words[0] == 'format':
+            raw_words = line.split()
+            if not raw_words or raw_words[0] in (b'comment', b'obj_info'):
+                continue  # free text (other writers put UTF-8 there)
+            try:
+                words = [word.decode('ascii') for word in raw_words]
+            except UnicodeDecodeError:
+                raise ValueError(f'{path}: damaged PLY header line {line[:60]!r}') from None
+            if words[0] == 'end_header':
+                break
+            if words[0] == 'format' and len(words) == 3 and words[2] == '1.0' and \
+                    fmt is None and count is None:
                 fmt = words[1]
-            elif words[0] == 'element':
+            elif words[0] == 'element' and len(words) == 3:
                 if words[1] != 'vertex' or count is not None:
                     raise ValueError(f'{path}: only a single vertex element is supported')
-                count = int(words[2])
-            elif words[0] == 'property':
-                if words[1] == 'list' or words[1] not in _PLY_TYPES:
+                count = int(words[2]) if words[2].isdigit() else -1
+                if count < 0:
+                    raise ValueError(f'{path}: vertex count {words[2]!r} is not a number')
+            elif words[0] == 'property' and len(words) >= 3:
+                name = words[-1]
+                if words[1] == 'list' or words[1] not in _PLY_TYPES or len(words) != 3:
                     raise ValueError(f'{path}: unsupported property {" ".join(words[1:])}')
-                properties.append((words[2], _PLY_TYPES[words[1]]))
-            elif words[0] == 'end_header':
-                break
+                if name in (known for known, _ in properties):
+                    raise ValueError(f'{path}: property {name} appears twice')
+                properties.append((name, _PLY_TYPES[words[1]]))
+            else:
+                raise ValueError(f'{path}: damaged PLY header line {line[:60]!r}')
         if fmt != 'binary_little_endian':
             raise ValueError(f'{path}: PLY format {fmt}; only binary_little_endian is read')
-        if count is None:
-            raise ValueError(f'{path}: PLY header has no vertex element')
+        if count is None or not properties:
+            raise ValueError(f'{path}: PLY header has no vertex element with properties')
         dtype = np.dtype(properties)
         data = stream.read()
     if len(data) < count * dtype.itemsize:

@@ -59,6 +59,12 @@ def _pose_offset(string_length: int) -> int:
     return _ENCAPSULATION + ((payload + 7) & ~7)
 
 
+def _frame_id(field: bytes) -> str:
+    """The frame_id of a NUL-terminated string field, up to its first NUL as rclpy reads
+    it (so that what we decode, our encoder and any ROS node accept)."""
+    return field[:field.index(0)].decode('utf-8')
+
+
 def _structs(data) -> tuple[struct.Struct, struct.Struct]:
     if len(data) < _ENCAPSULATION:
         raise ValueError(f'PoseStamped CDR truncated: {len(data)} bytes, no encapsulation header')
@@ -96,7 +102,7 @@ def decode_pose_stamped(data) -> tuple[int, int, str, Pose7]:
         if data[start + length - 1] != 0:
             raise ValueError('PoseStamped CDR malformed: frame_id is not NUL-terminated')
         try:
-            frame_id = bytes(data[start:start + length - 1]).decode('utf-8')
+            frame_id = _frame_id(bytes(data[start:start + length]))
         except UnicodeDecodeError as err:
             raise ValueError(f'PoseStamped CDR malformed: frame_id is not UTF-8 ({err})') from None
     else:
@@ -158,12 +164,12 @@ def _decode_uniform(messages, size: int):
             return None
         if np.all(names == names[0]):
             try:
-                frame_ids = [bytes(names[0, :-1]).decode('utf-8')] * len(messages)
+                frame_ids = [_frame_id(bytes(names[0]))] * len(messages)
             except UnicodeDecodeError:
                 return None
         else:
             try:
-                frame_ids = [bytes(row[:-1]).decode('utf-8') for row in names]
+                frame_ids = [_frame_id(bytes(row)) for row in names]
             except UnicodeDecodeError:
                 return None
     else:

@@ -61,7 +61,7 @@ STEREO_PARAMETERS: tuple[ParamSpec, ...] = (
               'mass (its mass above 1/2) or mean (its mean on [0, 1])', choices=UPDATES),
     ParamSpec('vision_spread_window', 5, 'Pixels: where the depth\'s local spread over this '
               'window exceeds the noise model, it is the noise (weak texture, depth edges); '
-              '0: off', minimum=0, maximum=31),
+              '0: off; odd, at most 31', choices=(0, *range(3, 32, 2))),
     ParamSpec('plane_tolerance', 0.004, 'Points within this distance (m) of a support plane '
               '(the table) lie on it and are not the object', minimum=0.0005, maximum=0.05),
     ParamSpec('support_fraction', 0.2, 'A plane holding this share of the workspace\'s '
@@ -126,8 +126,9 @@ class StereoConfig:
                                  p_free=float(values['clamp_min']),
                                  p_occupied=float(values['clamp_max']),
                                  spread_window=int(values['vision_spread_window']))
-        except ValueError as error:
-            raise ParameterError([f'stereo_node parameters: {error}']) from None
+        except ValueError as error:  # a combination the table cannot refuse on its own
+            raise ParameterError([f"stereo_node parameters 'workspace_*', 'resolution', "
+                                  f"'vision_*', 'clamp_min', 'clamp_max': {error}"]) from None
         problems: list[str] = []
         frames = FrameNames.from_parameters(values, problems)
         if problems:

@@ -283,10 +283,6 @@ def _read_bag_cloud(bag: Path, resolution: float | None) -> MapCells:
 
 def _decode_cloud(raw: bytes) -> tuple[np.ndarray, str]:
     """The points (a structured array) and frame id of a serialized PointCloud2."""
-    from rclpy.serialization import deserialize_message
-    from sensor_msgs.msg import PointCloud2
-
-    from inhand_common.point_cloud import from_point_cloud2
-    message = deserialize_message(bytes(raw), PointCloud2)
-    cells = np.array(from_point_cloud2(message))  # a copy: the message buffer goes away
-    return cells, message.header.frame_id or 'object'
+    from inhand_common.point_cloud import decode_point_cloud2
+    cloud = decode_point_cloud2(raw)
+    return np.array(cloud.points), cloud.frame_id or 'object'  # a copy: the bag's buffer goes away

@@ -36,12 +36,11 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
-from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
 from inhand_common.node_runner import run_node
 from inhand_common.parameters import ParameterError
-from inhand_common.point_cloud import from_point_cloud2
+from inhand_common.point_cloud import decode_point_cloud2
 from inhand_common.ros_clock import steady_timer
 from inhand_common.ros_parameters import declare_parameters
 from inhand_mapping.cloud_layouts import unpack_registered
@@ -197,23 +196,21 @@ class LiveView(Node):
                                           f'({type(error).__name__}: {error})')
 
     def _on_map(self, data: bytes) -> None:
-        msg = deserialize_message(data, PointCloud2)
-        self.state.set_map(from_point_cloud2(msg), msg.header.frame_id)
+        cloud = decode_point_cloud2(data)
+        self.state.set_map(cloud.points, cloud.frame_id)
 
     def _on_updates(self, data: bytes) -> None:
-        msg = deserialize_message(data, PointCloud2)
-        self.state.apply_updates(from_point_cloud2(msg), msg.header.frame_id)
+        cloud = decode_point_cloud2(data)
+        self.state.apply_updates(cloud.points, cloud.frame_id)
 
     def _on_occupied(self, data: bytes) -> None:
-        msg = deserialize_message(data, PointCloud2)
-        self.state.set_occupied(msg.width * msg.height)
+        self.state.set_occupied(len(decode_point_cloud2(data).points))
 
     def _on_textured(self, data: bytes) -> None:
-        self.state.set_textured(from_point_cloud2(deserialize_message(data, PointCloud2)))
+        self.state.set_textured(decode_point_cloud2(data).points)
 
     def _on_points(self, data: bytes) -> None:
-        points, times, fingers = unpack_registered(
-            from_point_cloud2(deserialize_message(data, PointCloud2)))
+        points, times, fingers = unpack_registered(decode_point_cloud2(data).points)
         if len(points):
             self.state.add_registered(points, fingers, times)
 
