@@ -31,7 +31,7 @@ import sys
 import time
 from pathlib import Path
 
-from inhand_tools.launching import ProcessGroup
+from inhand_tools.launching import ProcessGroup, mapping_graph
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 EXIT_CANNOT = 3
@@ -68,12 +68,13 @@ class Hosts:
         for netns in self.names.values():   # removing a namespace removes its veth end
             subprocess.run(['ip', 'netns', 'del', netns], capture_output=True, check=False)
 
-    def command(self, host: str, args: list[str]) -> list[str]:
-        return ['ip', 'netns', 'exec', self.names[host], *args]
+    def prefix(self, host: str) -> list[str]:
+        """What runs a command on ``host``."""
+        return ['ip', 'netns', 'exec', self.names[host]]
 
     def received_bytes(self, host: str) -> int:
-        out = subprocess.run(self.command(host, ['cat', f'/sys/class/net/{self.link[host]}/'
-                                                 'statistics/rx_bytes']),
+        out = subprocess.run([*self.prefix(host), 'cat', f'/sys/class/net/{self.link[host]}/'
+                             'statistics/rx_bytes'],
                              capture_output=True, text=True, check=True).stdout
         return int(out)
 
@@ -199,32 +200,23 @@ def main(argv=None) -> int:
     args.output.mkdir(parents=True, exist_ok=True)
     port = f'/tmp/liberty-two-hosts-{os.getpid()}'
     log = Lines()
-    python = sys.executable
     with Hosts(str(os.getpid() % 100000), not args.without_peers) as hosts, ProcessGroup(stream=log) as group:
         group.say(f'[launch] tracker host {hosts.address["tracker"]} and mapper host '
                   f'{hosts.address["mapper"]}: '
                   f'{"no static peers" if args.without_peers else "static peers"}, '
                   'no multicast, UDPv4 only')
-        config = str(WORKSPACE / 'config' / 'mapping.yaml')
-        mapper = hosts.dds_environment('mapper', args.output)
-        for name, node in (('registration', 'registration_node'),
-                           ('occupancy', 'occupancy_node')):
-            extra = ['-p', f'output_dir:={args.output}', '-p', 'map_name:=two_hosts'] \
-                if name == 'occupancy' else []
-            group.start(name, hosts.command('mapper', [
-                str(Path(python).parent / node), '--ros-args', '--params-file', config,
-                *extra]), env=mapper)
+        mapping_graph(group, str(WORKSPACE / 'config' / 'mapping.yaml'), str(args.output),
+                      'two_hosts', env=hosts.dds_environment('mapper', args.output),
+                      prefix=hosts.prefix('mapper'))
         # The mapper's own link first, so that every point registered reaches the map.
         if not log.wait_for(r'registration/points: 1 subscriber', 30.0):
             group.say('[launch] occupancy_node did not subscribe within 30 s')
         tracker = hosts.dds_environment('tracker', args.output)
-        group.start('emulator', hosts.command('tracker', [
-            str(Path(python).parent / 'liberty_emulator'), '--port', port]), env=tracker)
-        time.sleep(1.0)
-        group.start('driver', hosts.command('tracker', [
-            str(Path(python).parent / 'liberty_driver'), '--ros-args', '--params-file',
-            str(WORKSPACE / 'config' / 'liberty_emulator.yaml'), '-p', f'port:={port}']),
-            env=tracker)
+        group.start('emulator', ['liberty_emulator', '--port', port], tracker,
+                    hosts.prefix('tracker'))
+        group.start('driver', ['liberty_driver', '--ros-args', '--params-file',
+                               str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
+                               '-p', f'port:={port}'], tracker, hosts.prefix('tracker'))
         started = time.monotonic()
         if hosts.wait_for_stream(FLOWING, timeout=10.0 if args.without_peers else 30.0):
             group.say(f'[launch] poses flow into the mapper host '

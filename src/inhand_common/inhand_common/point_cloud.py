@@ -24,6 +24,8 @@ from typing import NamedTuple
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
+from inhand_common.cdr import ENCAPSULATION, byte_order, decode_string
+
 __all__ = ['DecodedCloud', 'decode_point_cloud2', 'from_point_cloud2', 'points_of_layout',
            'serialize_point_cloud2', 'to_point_cloud2']
 
@@ -195,18 +197,11 @@ class _CdrReader:
 
     def __init__(self, data) -> None:
         self.data = memoryview(data).cast('B')
-        if len(self.data) < 4:
-            raise ValueError(f'PointCloud2 CDR truncated: {len(self.data)} bytes, no '
-                             'encapsulation header')
-        kind = (self.data[0] << 8) | self.data[1]
-        if kind not in (0x0000, 0x0001):
-            raise ValueError(f'unsupported CDR encapsulation 0x{kind:04x} (expected 0x0001 '
-                             'CDR_LE or 0x0000 CDR_BE)')
-        self.order = '<' if kind == 0x0001 else '>'
-        self.offset = 4
+        self.byteorder = 'little' if byte_order(self.data, 'PointCloud2') == '<' else 'big'
+        self.offset = ENCAPSULATION
 
     def take(self, size: int, what: str, alignment: int = 1) -> memoryview:
-        start = self.offset + (-(self.offset - 4) % alignment)
+        start = self.offset + (-(self.offset - ENCAPSULATION) % alignment)
         end = start + size
         if end > len(self.data):
             raise ValueError(f'PointCloud2 CDR truncated: {what} needs bytes {start}..{end} '
@@ -215,27 +210,17 @@ class _CdrReader:
         return self.data[start:end]
 
     def uint32(self, what: str) -> int:
-        return int.from_bytes(self.take(4, what, 4), 'little' if self.order == '<' else 'big')
+        return int.from_bytes(self.take(4, what, 4), self.byteorder)
 
     def int32(self, what: str) -> int:
-        return int.from_bytes(self.take(4, what, 4), 'little' if self.order == '<' else 'big',
-                              signed=True)
+        return int.from_bytes(self.take(4, what, 4), self.byteorder, signed=True)
 
     def uint8(self, what: str) -> int:
         return self.take(1, what)[0]
 
     def string(self, what: str) -> str:
         length = self.uint32(f'the length of {what}')
-        raw = bytes(self.take(length, what))
-        if length == 0:
-            return ''  # some writers encode the empty string as length 0
-        if raw[-1] != 0:
-            raise ValueError(f'PointCloud2 CDR malformed: {what} is not NUL-terminated')
-        try:  # up to the first NUL, as rclpy reads a string
-            return raw[:raw.index(0)].decode('utf-8')
-        except UnicodeDecodeError as error:
-            raise ValueError(f'PointCloud2 CDR malformed: {what} is not UTF-8 ({error})'
-                             ) from None
+        return decode_string(bytes(self.take(length, what)), what, 'PointCloud2')
 
 
 _FIELD_CDR_MIN = 13  # name length (4) + offset (4) + datatype (1) + count (4)

@@ -30,6 +30,8 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
+from inhand_common.cdr import CDR_BE, CDR_LE, ENCAPSULATION, byte_order, decode_string
+
 __all__ = [
     'CDR_BE',
     'CDR_LE',
@@ -38,10 +40,6 @@ __all__ = [
     'encode_pose_stamped',
 ]
 
-CDR_BE = 0x0000
-CDR_LE = 0x0001
-
-_ENCAPSULATION = 4
 _LE_HEAD = struct.Struct('<iII')
 _BE_HEAD = struct.Struct('>iII')
 _LE_POSE = struct.Struct('<7d')
@@ -56,25 +54,17 @@ Pose7 = tuple[float, float, float, float, float, float, float]
 def _pose_offset(string_length: int) -> int:
     """Buffer offset of the 7 doubles for a frame_id field of ``string_length`` bytes."""
     payload = _HEAD_SIZE + string_length
-    return _ENCAPSULATION + ((payload + 7) & ~7)
+    return ENCAPSULATION + ((payload + 7) & ~7)
 
 
-def _frame_id(field: bytes) -> str:
-    """The frame_id of a NUL-terminated string field, up to its first NUL as rclpy reads
-    it (so that what we decode, our encoder and any ROS node accept)."""
-    return field[:field.index(0)].decode('utf-8')
+def _frame_id(field) -> str:
+    return decode_string(bytes(field), 'frame_id', 'PoseStamped')
 
 
 def _structs(data) -> tuple[struct.Struct, struct.Struct]:
-    if len(data) < _ENCAPSULATION:
-        raise ValueError(f'PoseStamped CDR truncated: {len(data)} bytes, no encapsulation header')
-    kind = (data[0] << 8) | data[1]
-    if kind == CDR_LE:
+    if byte_order(data, 'PoseStamped') == '<':
         return _LE_HEAD, _LE_POSE
-    if kind == CDR_BE:
-        return _BE_HEAD, _BE_POSE
-    raise ValueError(f'unsupported CDR encapsulation 0x{kind:04x} (expected 0x0001 CDR_LE '
-                     'or 0x0000 CDR_BE; XCDR2 and parameter lists are not PoseStamped)')
+    return _BE_HEAD, _BE_POSE
 
 
 def decode_pose_stamped(data) -> tuple[int, int, str, Pose7]:
@@ -85,11 +75,11 @@ def decode_pose_stamped(data) -> tuple[int, int, str, Pose7]:
     """
     head, pose = _structs(data)
     size = len(data)
-    if size < _ENCAPSULATION + _HEAD_SIZE:
+    if size < ENCAPSULATION + _HEAD_SIZE:
         raise ValueError(f'PoseStamped CDR truncated: {size} bytes, header needs '
-                         f'{_ENCAPSULATION + _HEAD_SIZE}')
-    sec, nanosec, length = head.unpack_from(data, _ENCAPSULATION)
-    start = _ENCAPSULATION + _HEAD_SIZE
+                         f'{ENCAPSULATION + _HEAD_SIZE}')
+    sec, nanosec, length = head.unpack_from(data, ENCAPSULATION)
+    start = ENCAPSULATION + _HEAD_SIZE
     offset = _pose_offset(length)
     end = offset + _POSE_SIZE
     if size < end:
@@ -98,15 +88,7 @@ def decode_pose_stamped(data) -> tuple[int, int, str, Pose7]:
     if size - end > 3:
         raise ValueError(f'PoseStamped CDR malformed: {size - end} bytes after the pose '
                          f'(message is {end} bytes)')
-    if length:
-        if data[start + length - 1] != 0:
-            raise ValueError('PoseStamped CDR malformed: frame_id is not NUL-terminated')
-        try:
-            frame_id = _frame_id(bytes(data[start:start + length]))
-        except UnicodeDecodeError as err:
-            raise ValueError(f'PoseStamped CDR malformed: frame_id is not UTF-8 ({err})') from None
-    else:
-        frame_id = ''  # some writers encode the empty string as length 0
+    frame_id = decode_string(bytes(data[start:start + length]), 'frame_id', 'PoseStamped')
     return sec, nanosec, frame_id, pose.unpack_from(data, offset)
 
 
@@ -124,7 +106,7 @@ def decode_pose_stamped_many(messages: Sequence | Iterable
         return np.empty(0, dtype=np.int64), [], np.empty((0, 7))
     lengths = set(map(len, messages))
     first_len = len(messages[0])
-    if len(lengths) == 1 and first_len >= _ENCAPSULATION + _HEAD_SIZE:
+    if len(lengths) == 1 and first_len >= ENCAPSULATION + _HEAD_SIZE:
         batch = _decode_uniform(messages, first_len)
         if batch is not None:
             return batch
@@ -146,9 +128,9 @@ def decode_pose_stamped_many(messages: Sequence | Iterable
 def _decode_uniform(messages, size: int):
     """Vectorised decode of equally long little-endian messages, or None to fall back."""
     raw = np.frombuffer(b''.join(messages), dtype=np.uint8).reshape(len(messages), size)
-    if not np.all(raw[:, :_ENCAPSULATION] == np.frombuffer(_LE_ENCAP, np.uint8)):
+    if not np.all(raw[:, :ENCAPSULATION] == np.frombuffer(_LE_ENCAP, np.uint8)):
         return None  # other byte order or options: the per-message path says what is wrong
-    head = np.ascontiguousarray(raw[:, _ENCAPSULATION:_ENCAPSULATION + _HEAD_SIZE])
+    head = np.ascontiguousarray(raw[:, ENCAPSULATION:ENCAPSULATION + _HEAD_SIZE])
     head = head.view('<u4')
     length = int(head[0, 2])
     if not np.all(head[:, 2] == length):
@@ -157,21 +139,18 @@ def _decode_uniform(messages, size: int):
     end = offset + _POSE_SIZE
     if size < end or size - end > 3:
         return None
-    start = _ENCAPSULATION + _HEAD_SIZE
+    start = ENCAPSULATION + _HEAD_SIZE
     if length:
         names = raw[:, start:start + length]
         if not np.all(names[:, -1] == 0):
             return None
-        if np.all(names == names[0]):
-            try:
-                frame_ids = [_frame_id(bytes(names[0]))] * len(messages)
-            except UnicodeDecodeError:
-                return None
-        else:
-            try:
-                frame_ids = [_frame_id(bytes(row)) for row in names]
-            except UnicodeDecodeError:
-                return None
+        try:
+            if np.all(names == names[0]):
+                frame_ids = [_frame_id(names[0])] * len(messages)
+            else:
+                frame_ids = [_frame_id(row) for row in names]
+        except ValueError:
+            return None
     else:
         frame_ids = [''] * len(messages)
     sec = head[:, 0].view('<i4').astype(np.int64)
@@ -187,7 +166,7 @@ def _message_struct(string_length: int) -> struct.Struct:
     ``s`` pads with NULs, so the frame_id's terminator comes for free; ``x`` is the zeroed
     alignment padding before the doubles.
     """
-    pad = _pose_offset(string_length) - _ENCAPSULATION - _HEAD_SIZE - string_length
+    pad = _pose_offset(string_length) - ENCAPSULATION - _HEAD_SIZE - string_length
     return struct.Struct(f'<iII{string_length}s{pad}x7d')
 
 

@@ -82,10 +82,13 @@ class ProcessGroup:
             except (OSError, ValueError):
                 pass
 
-    def start(self, name: str, args: Sequence[str], env: dict | None = None) -> subprocess.Popen:
-        """Start ``args`` (first element: an executable name or path) as ``name``. From the
-        main thread: the parent-death signal follows the thread that started the child."""
-        command = [executable(args[0]) if os.sep not in args[0] else args[0], *args[1:]]
+    def start(self, name: str, args: Sequence[str], env: dict | None = None,
+              prefix: Sequence[str] = ()) -> subprocess.Popen:
+        """Start ``args`` (first element: an executable name or path) as ``name``, through
+        ``prefix`` if given (e.g. ``ip netns exec NAME``). From the main thread: the
+        parent-death signal follows the thread that started the child."""
+        command = [*prefix, executable(args[0]) if os.sep not in args[0] else args[0],
+                   *args[1:]]
         process = subprocess.Popen(command_with_parent_death(command), stdout=subprocess.PIPE,
                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
                                    start_new_session=True, text=True, bufsize=1)
@@ -167,24 +170,27 @@ def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
 
 def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: str,
                   namespace: str | None = None, stereo_config: str | None = None,
-                  sim_time: bool = False, autosave: float = 0.0) -> None:
+                  sim_time: bool = False, autosave: float = 0.0, env: dict | None = None,
+                  prefix: Sequence[str] = ()) -> None:
     """Start ``registration_node`` and ``occupancy_node`` with the parameters of ``config``
     (a file with both nodes' sections), saving maps to ``output_dir/map_name``; with
     ``stereo_config`` (the rig's file, e.g. config/stereo.yaml) also ``stereo_node``, which
     takes its session settings from ``config`` and the rig's from ``stereo_config``.
     ``sim_time``: the nodes run with ``use_sim_time`` (a replay publishes ``/clock``);
-    ``autosave``: the occupancy node saves a changed map every so many seconds."""
+    ``autosave``: the occupancy node saves a changed map every so many seconds; ``env``
+    and ``prefix`` as in ProcessGroup.start."""
     ros_args = ['--ros-args', '--params-file', config]
     if sim_time:
         ros_args += ['-p', 'use_sim_time:=true']
     if namespace:
         ros_args += ['-r', f'__ns:={namespace}']
-    group.start('registration', ['registration_node', *ros_args])
+    group.start('registration', ['registration_node', *ros_args], env, prefix)
     group.start('occupancy', ['occupancy_node', *ros_args, '-p', f'output_dir:={output_dir}',
                               '-p', f'map_name:={map_name}',
-                              '-p', f'autosave_period:={float(autosave)}'])
+                              '-p', f'autosave_period:={float(autosave)}'], env, prefix)
     if stereo_config:
-        group.start('stereo', ['stereo_node', *ros_args, '--params-file', stereo_config])
+        group.start('stereo', ['stereo_node', *ros_args, '--params-file', stereo_config],
+                    env, prefix)
 
 
 class TopicWatch:
