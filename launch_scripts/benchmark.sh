@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|latency|fuzz|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -30,6 +30,11 @@
 #                      and PointCloud2 decoders, NPZ and PLY readers, parameter checks) on a
 #                      million random inputs (test/benchmarks/fuzz.py: --inputs N, --jobs J,
 #                      --round R, --targets NAME...)
+#   soak               the live graph against the emulator for 30 min, a fault a minute, the
+#                      occupancy node killed and resumed from its autosave once: crashes,
+#                      memory, frames lost, the map against build_map of the recorded bag
+#                      (test/benchmarks/soak.py: --minutes M, --fault-every S, --autosave S,
+#                      --output DIR)
 #   all                every benchmark in turn, each with the same options
 # Examples:
 #   bash launch_scripts/benchmark.sh --seconds 20
@@ -48,8 +53,9 @@ declare -A BENCHMARKS=(
   [quality]=bench_quality.py
   [latency]=bench_live_latency.py
   [fuzz]=fuzz.py
+  [soak]=soak.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags texture quality latency fuzz)
+ORDER=(liberty mapping replay stereo stereo-bags texture quality latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -58,14 +58,16 @@ class LiveLauncher:
             [sys.executable, str(WORKSPACE / 'launch_scripts' / 'live_emulator.py'), *args],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self.lines: list[str] = []
+        self.started: set[int] = set()
         self._reader = threading.Thread(target=lambda: self.lines.extend(self.popen.stdout),
                                         daemon=True)
         self._reader.start()
 
-    def wait_mapping(self, after: float = 2.0) -> None:
+    def wait_mapping(self, after: float = 2.0) -> list[int]:
         """Until registered points flow (a loaded machine took over 5 s to start the graph,
         and the subscribers of registration/points matched before the driver streamed),
-        then ``after`` seconds of mapping."""
+        then ``after`` seconds of mapping. Returns every process the launcher was seen to
+        run meanwhile: with a short --duration it may already be stopping them by the end."""
         from ros_helpers import CloudCounter
         counter = CloudCounter('registration/points')
         try:
@@ -73,10 +75,15 @@ class LiveLauncher:
             while counter.points == 0:
                 assert time.monotonic() < deadline and self.popen.poll() is None, \
                     self.output()
+                self.started.update(descendants(self.popen.pid))
+                time.sleep(0.1)
+            end = time.monotonic() + after
+            while time.monotonic() < end:
+                self.started.update(descendants(self.popen.pid))
                 time.sleep(0.1)
         finally:
             counter.close()
-        time.sleep(after)
+        return sorted(self.started)
 
     def output(self) -> str:
         return ''.join(self.lines)
@@ -96,10 +103,9 @@ def test_live_graph_saves_the_drained_map_and_leaves_no_orphans(tmp_path, how):
     and no process is left."""
     from inhand_mapping.map_io import load_npz
     live = LiveLauncher('--output', str(tmp_path),
-                        *(['--duration', '6'] if how == 'duration' else []))
-    live.wait_mapping()
+                        *(['--duration', '10'] if how == 'duration' else []))
+    started = live.wait_mapping()
     launcher = live.popen
-    started = descendants(launcher.pid)
     assert len(started) >= 4, 'emulator, driver, registration and occupancy should run'
     if how != 'duration':
         launcher.send_signal(signal.SIGHUP if how == 'sighup' else signal.SIGINT)
@@ -124,9 +130,8 @@ def test_kill_9_of_the_launcher_leaves_no_orphans_and_the_map_is_saved(tmp_path)
     """kill -9 gives the launcher no chance: the kernel's parent-death signal stops its
     children, and the occupancy node saves what it has as on any SIGTERM."""
     live = LiveLauncher('--output', str(tmp_path), '--autosave', '0')
-    live.wait_mapping()          # the shutdown save needs points in the map
+    started = live.wait_mapping()          # the shutdown save needs points in the map
     launcher = live.popen
-    started = descendants(launcher.pid)
     assert len(started) >= 4, 'emulator, driver, registration and occupancy should run'
     launcher.kill()
     launcher.wait()

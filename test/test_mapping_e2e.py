@@ -218,6 +218,13 @@ def test_two_hands_side_by_side_in_two_namespaces(tmp_path):
                 stack.enter_context(running(['occupancy_node', *ros, '-p',
                                              f'output_dir:={tmp_path}', '-p',
                                              f'map_name:={hand}'])))
+        for _, occupancy in processes.values():
+            # Both readers in place before the poses: under load the occupancy node took
+            # 3 s to start, and the first points went by before it subscribed.
+            deadline = time.monotonic() + 30.0
+            while 'registration/points: 1 publisher(s)' not in occupancy.output():
+                assert time.monotonic() < deadline, occupancy.output()
+                time.sleep(0.1)
         for hand, hand_frames in hands.items():
             publisher = PosePublisher(['thumb', 'index', 'middle'], namespace=hand)
             try:
@@ -234,8 +241,10 @@ def test_two_hands_side_by_side_in_two_namespaces(tmp_path):
                 if grid.hits.sum() >= 3 * len(hand_frames) or time.monotonic() > deadline:
                     break
                 time.sleep(0.5)
-            assert grid.hits.sum() == 3 * len(hand_frames), hand
             registration, occupancy = processes[hand]
+            assert grid.hits.sum() == 3 * len(hand_frames), \
+                f'{hand}\n{registration.output()}\n{occupancy.output()}'
+
             assert 'in static mode' in registration.output()   # the file applied
             assert 'centred at [0.25, 0.0, 0.05]' in occupancy.output()
             cells = grid.cells(threshold=0.8)[0]
@@ -271,7 +280,7 @@ def test_occupancy_node_refuses_a_workspace_that_is_not_whole_cells():
 
 
 def test_occupancy_node_refuses_a_grid_larger_than_the_machine_has():
-    """0.5 m at 0.5 mm is 1000^3 cells, about 112 GB: the node used to take 2 GB in 5 s
+    """0.5 m at 0.5 mm is 1000^3 cells, about 149 GB: the node used to take 2 GB in 5 s
     before anything said so. It refuses at start with the figure and what the machine
     has."""
     started = time.monotonic()

@@ -53,6 +53,15 @@ class GlobalMap:
         self.vision = log_odds
         self._stale = True
 
+    def settled(self) -> GlobalMap:
+        """This map with what the touch grid holds back applied, on a copy
+        (OccupancyGrid.settled_copy): what a save writes and a pause shows, while this map
+        goes on taking the stream as if neither had happened."""
+        view = GlobalMap(self.touch.settled_copy(), self.fusion, self.entropy_radius,
+                         self.clamp, self.entropy_pooling)
+        view.vision = self.vision
+        return view
+
     def touch_changed(self) -> None:
         self._stale = True
 

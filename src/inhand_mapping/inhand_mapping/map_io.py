@@ -67,9 +67,11 @@ FilePath: TypeAlias = str | os.PathLike[str]
 Writer: TypeAlias = Callable[[FilePath], AbstractContextManager[BinaryIO]]
 
 FORMAT_VERSION = 2
-# What numpy, zipfile and zlib raise for a foreign or damaged file, or a missing key.
+# What numpy, zipfile and zlib raise for a foreign or damaged file, or a missing key;
+# RuntimeError: zipfile's "encrypted, password required" (a flipped flag bit) and its
+# NotImplementedError for compression features it lacks.
 _UNREADABLE = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error,
-               NotImplementedError)
+               RuntimeError)
 # Version 1 maps were built with every sample a full measurement and eq. 3 at cell centres.
 VERSION_1_MODEL = {'distance_to': 'centre', 'evidence_rate': 0.0, 'visit_gap': 0.0}
 # Maps saved before the path model had samples as their only touch model.
@@ -356,19 +358,22 @@ def read_ply(path: FilePath) -> Records:
             try:
                 words = [word.decode('ascii') for word in raw_words]
             except UnicodeDecodeError:
-                raise ValueError(f'{path}: damaged PLY header line {line[:60]!r}') from None
+                words = []
+            # Control characters inside a word: damage (other readers split at some).
+            if not words or not all(word.isprintable() for word in words):
+                raise ValueError(f'{path}: damaged PLY header line {line[:60]!r}')
             if words[0] == 'end_header':
                 break
             if words[0] == 'format' and len(words) == 3 and words[2] == '1.0' and \
                     fmt is None and count is None:
                 fmt = words[1]
-            elif words[0] == 'element' and len(words) == 3:
+            elif words[0] == 'element' and len(words) == 3 and fmt is not None:
                 if words[1] != 'vertex' or count is not None:
                     raise ValueError(f'{path}: only a single vertex element is supported')
                 count = int(words[2]) if words[2].isdigit() else -1
                 if count < 0:
                     raise ValueError(f'{path}: vertex count {words[2]!r} is not a number')
-            elif words[0] == 'property' and len(words) >= 3:
+            elif words[0] == 'property' and len(words) >= 3 and count is not None:
                 name = words[-1]
                 if words[1] == 'list' or words[1] not in _PLY_TYPES or len(words) != 3:
                     raise ValueError(f'{path}: unsupported property {" ".join(words[1:])}')

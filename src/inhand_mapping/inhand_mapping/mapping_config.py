@@ -118,10 +118,11 @@ OCCUPANCY_PARAMETERS = (
 )
 
 
-# Bytes per cell the occupancy node holds (the grid's arrays, the path model's evidence, the
-# map clouds' buffers, the live updates' copy), measured with tracemalloc on 100^3 cells:
-# 119 at the peak without fusion, 210 with a vision map fused.
-BYTES_PER_CELL = {'none': 120, 'fusion': 210}
+# Bytes per cell the occupancy node holds at its peak (the grid's arrays, the path model's
+# evidence, the map clouds' buffers, the live updates' copy, and during a save the settled
+# copy of the map with its clouds), measured with tracemalloc on 100^3 cells: 158 without
+# fusion, 241 with a vision map fused by product, 246 by entropy.
+BYTES_PER_CELL = {'none': 160, 'fusion': 250}
 
 
 def memory_problem(cells_per_axis: int, fusion: str, available: int | None) -> str | None:

@@ -162,6 +162,14 @@ class TouchPaths:
                               / self.model.log_odds_per_touch)
 
     # ------------------------------------------------------------------ state
+    def take_state(self, other: TouchPaths) -> None:
+        """Become a copy of ``other``'s tracks, visits and evidence (a grid's settled copy,
+        occupancy.py); the cells are this one's own."""
+        self.evidence[...] = other.evidence
+        self.tracks = kernels.PathTracks._make(field.copy() for field in other.tracks)
+        self.visits = kernels.PathVisits._make(field.copy() for field in other.visits)
+        self.counts = kernels.PathCounts._make(field.copy() for field in other.counts)
+
     def _grow(self, fingers: int) -> None:
         have = len(self.tracks.held)
         if fingers <= have:

@@ -26,7 +26,7 @@ from pathlib import Path
 from inhand_tools.parent_death import command_with_parent_death
 
 __all__ = ['ProcessGroup', 'TopicWatch', 'add_view_arguments', 'call_trigger', 'executable',
-           'hold_view', 'mapping_graph', 'save_when_drained', 'start_view']
+           'hold_view', 'mapping_graph', 'save_when_drained', 'start_occupancy', 'start_view']
 
 
 def executable(name: str) -> str:
@@ -139,8 +139,18 @@ class ProcessGroup:
         time.sleep(0.05)  # let the output threads print the last lines
 
 
+SERVICE_SETTLE = 0.5   # s after a service appears before the first request
+RESEND_AFTER = 5.0     # s without an answer before the request is sent again
+
+
 def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
-    """Call a std_srvs/Trigger service once (waiting for it to appear); (success, message)."""
+    """Call a std_srvs/Trigger service (waiting for it to appear); (success, message).
+
+    A client that calls as soon as the service appears can lose the answer: the server's
+    response writer may not have matched the client's reader yet (seen under load: a save
+    done, its answer never delivered). So the first request waits SERVICE_SETTLE, and an
+    unanswered one is sent again every RESEND_AFTER s until ``timeout``: the services
+    called this way (save, reset) give the same result when repeated."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -155,10 +165,16 @@ def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
             return False, f'service {service} did not appear within {timeout:g} s'
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        future = client.call_async(Trigger.Request())
+        time.sleep(SERVICE_SETTLE)
         deadline = time.monotonic() + timeout
-        while not future.done() and time.monotonic() < deadline:
+        futures = [client.call_async(Trigger.Request())]
+        resend = time.monotonic() + RESEND_AFTER
+        while not any(f.done() for f in futures) and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.1)
+            if time.monotonic() >= resend:
+                futures.append(client.call_async(Trigger.Request()))
+                resend += RESEND_AFTER
+        future = next((f for f in futures if f.done()), futures[0])
         if not future.done():
             return False, f'service {service} did not answer within {timeout:g} s'
         result = future.result()
@@ -179,18 +195,36 @@ def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: s
     ``sim_time``: the nodes run with ``use_sim_time`` (a replay publishes ``/clock``);
     ``autosave``: the occupancy node saves a changed map every so many seconds; ``env``
     and ``prefix`` as in ProcessGroup.start."""
+    ros_args = _ros_arguments(config, namespace, sim_time)
+    group.start('registration', ['registration_node', *ros_args], env, prefix)
+    start_occupancy(group, config, output_dir, map_name, namespace=namespace,
+                    sim_time=sim_time, autosave=autosave, env=env, prefix=prefix)
+    if stereo_config:
+        group.start('stereo', ['stereo_node', *ros_args, '--params-file', stereo_config],
+                    env, prefix)
+
+
+def start_occupancy(group: ProcessGroup, config: str, output_dir: str, map_name: str, *,
+                    namespace: str | None = None, sim_time: bool = False,
+                    autosave: float = 0.0, initial_map: str | None = None,
+                    env: dict | None = None, prefix: Sequence[str] = ()) -> subprocess.Popen:
+    """Start ``occupancy_node`` as :func:`mapping_graph` does; ``initial_map``: an NPZ to
+    start from (after a crash: its autosave)."""
+    args = ['occupancy_node', *_ros_arguments(config, namespace, sim_time),
+            '-p', f'output_dir:={output_dir}', '-p', f'map_name:={map_name}',
+            '-p', f'autosave_period:={float(autosave)}']
+    if initial_map:
+        args += ['-p', f'initial_map:={initial_map}']
+    return group.start('occupancy', args, env, prefix)
+
+
+def _ros_arguments(config: str, namespace: str | None, sim_time: bool) -> list[str]:
     ros_args = ['--ros-args', '--params-file', config]
     if sim_time:
         ros_args += ['-p', 'use_sim_time:=true']
     if namespace:
         ros_args += ['-r', f'__ns:={namespace}']
-    group.start('registration', ['registration_node', *ros_args], env, prefix)
-    group.start('occupancy', ['occupancy_node', *ros_args, '-p', f'output_dir:={output_dir}',
-                              '-p', f'map_name:={map_name}',
-                              '-p', f'autosave_period:={float(autosave)}'], env, prefix)
-    if stereo_config:
-        group.start('stereo', ['stereo_node', *ros_args, '--params-file', stereo_config],
-                    env, prefix)
+    return ros_args
 
 
 class TopicWatch:

@@ -36,10 +36,11 @@ with each map publication, on ``transforms`` and, on a full ROS install, ``/tf``
 points falling outside the workspace, a warning in the log too. The map is published on
 a steady-clock timer, so ``use_sim_time`` changes the stamps, not the mapping.
 
-The map holds each finger's newest samples back until the next 1/15 s shows how fast the
-finger was moving (dwell.py). They are applied when the next points come, before a save,
-and when no points have come for two publish periods (the end of a replay, a pause), so
-the map published after a stream ends holds all of it.
+The map holds each finger's newest samples back until the samples after them show how
+fast the finger was moving (touch_paths.py, dwell.py). A save, and the map published once
+no points have come for two publish periods (the end of a replay, a pause), are made from
+a copy with them applied (GlobalMap.settled): the live map goes on holding them, so saves
+and pauses leave the map the stream gives unchanged (build_map's of the same poses).
 """
 
 from __future__ import annotations
@@ -95,6 +96,7 @@ class OccupancyNode(Node):
         self._changed = False
         self._unsaved = False   # points integrated since the last save (autosave, shutdown)
         self._idle_ticks = 0   # publish periods since points last came
+        self._settled_shown = False   # the map with what it holds back applied is shown
         self._latest_stamp = None
         self._colours: GridColours | None = None   # the latest occupancy/textured, by cell
         self.frames = config.frames
@@ -147,11 +149,17 @@ class OccupancyNode(Node):
             self._products[id(grid)] = MapProducts(grid, self.config.occupied_threshold)
         return self._products[id(grid)]
 
+    def _products_of_copy(self, grid) -> MapProducts:
+        """The products of a settled copy, made for it alone (products() keeps its buffers
+        for the grids that last)."""
+        return MapProducts(grid, self.config.occupied_threshold)
+
     def _on_points(self, msg: PointCloud2) -> None:
         points, times, fingers = unpack_registered(from_point_cloud2(msg))
         self.activity.received += len(points)
         self.activity.messages += 1
         self._idle_ticks = 0
+        self._settled_shown = False
         if len(points):
             self.grid.integrate(points, times, fingers)
             self.map.touch_changed()
@@ -190,17 +198,23 @@ class OccupancyNode(Node):
 
     def _publish(self) -> None:
         self._idle_ticks += 1
-        if self._idle_ticks >= 2:
-            self._apply_held()
-        if not self._changed:
+        # Points stopped for two periods (a pause, the end of a replay): show the map with
+        # what it holds back applied, on a copy.
+        settle = self._idle_ticks >= 2 and self.grid.pending > 0
+        if not (self._changed or (settle and not self._settled_shown)):
             return
         self._changed = False
+        shown, products_of = self.map, self.products
+        if settle:
+            self._settled_shown = True
+            shown = self.map.settled()
+            products_of = self._products_of_copy
         stamp = self._latest_stamp or self.get_clock().now().to_msg()
-        grid = self.map.grid()
-        products = self.products(grid)
+        grid = shown.grid()
+        products = products_of(grid)
         map_frame = self.frames.map_frame
         if self._touch_cloud is not None:
-            touch, _ = self.products(self.grid).cells()
+            touch, _ = products_of(shown.touch).cells()
             self._touch_cloud.publish(serialize_point_cloud2(touch, map_frame, stamp.sec,
                                                              stamp.nanosec))
         touched, occupied = products.cells()
@@ -240,13 +254,6 @@ class OccupancyNode(Node):
         self.get_logger().info('map cleared')
         return response
 
-    def _apply_held(self) -> None:
-        """Apply the samples the map holds back for their dwell weights (see the top)."""
-        if self.grid.pending:
-            self.grid.flush()
-            self.map.touch_changed()
-            self._changed = True
-
     def _on_save(self, _request, response):
         response.success, response.message = self.save()
         return response
@@ -259,8 +266,8 @@ class OccupancyNode(Node):
 
     def save(self) -> tuple[bool, str]:
         """Write the map set (map_products.save_map); (success, paths or the reason)."""
-        self._apply_held()
-        grid = self.map.grid()
+        saved = self.map.settled()   # the live map goes on holding back (see the top)
+        grid = saved.grid()
         colours = textured = None
         if self._colours is not None:
             centres = grid.cells(threshold=self.config.occupied_threshold)[0]
@@ -272,7 +279,7 @@ class OccupancyNode(Node):
                                     'fusion': self.config.fusion if self.map.fusing
                                     else 'none'},
                              colours=colours, textured=textured,
-                             local_maps=self.map.local_maps())
+                             local_maps=saved.local_maps())
         except OSError as error:
             message = f'could not save the map: {error}'
             self.get_logger().error(message)
@@ -280,7 +287,6 @@ class OccupancyNode(Node):
         self._unsaved = False
         message = ' '.join(str(p) for p in paths)
         self.get_logger().info(f'saved {message}')
-        self._publish()
         return True, message
 
     def _report(self, now: float, problems: Problems) -> tuple[str, dict[str, object]]:
@@ -302,7 +308,8 @@ class OccupancyNode(Node):
             f'stopped: received {self.activity.received} points in {self.activity.messages} '
             'messages; '
             f'{counts.integrated} points integrated, {counts.outside} outside the workspace, '
-            f'{counts.invalid} invalid, {self.grid.pending} not yet applied')
+            f'{counts.invalid} invalid, {self.grid.pending} held back for their speeds (a '
+            'save applies them)')
 
 
 def main(args=None) -> int:
