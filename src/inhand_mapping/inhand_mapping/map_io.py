@@ -200,8 +200,9 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
                          f'this software reads {FORMAT_VERSION}')
     try:
         grid = _grid_of(metadata, arrays)
-    # what a damaged or foreign metadata entry makes the constructors raise
-    except (TypeError, ValueError, KeyError, OverflowError) as error:
+    # what a damaged or foreign metadata entry makes the constructors raise (arithmetic:
+    # a value that passes the checks and still breaks a formula)
+    except (TypeError, ValueError, KeyError, ArithmeticError) as error:
         raise ValueError(f'{path}: damaged map ({error})') from None
     return grid, metadata
 

@@ -173,8 +173,11 @@ class SensorModel:
             raise ValueError('need transit_speed > 0, speed_context >= 0 and pass_time > 0')
         if not 0.0 < self.clamp_min < self.prior < self.clamp_max < 1.0:
             raise ValueError('need 0 < clamp_min < prior < clamp_max < 1')
-        if not 0.0 < self.p_z_given_not_occupied < 1.0 or self.sigma <= 0:
-            raise ValueError('need 0 < P(Z|not O) < 1 and sigma > 0')
+        # sigma squared, not sigma: eq. 3 divides by it (2e-285 m passed "> 0" and its
+        # square was 0 -- a damaged map file found by fuzzing)
+        if not 0.0 < self.p_z_given_not_occupied < 1.0 or not self.sigma ** 2 > 0:
+            raise ValueError(f'need 0 < P(Z|not O) < 1 and sigma > 0 (with a square above '
+                             f'0), not {self.p_z_given_not_occupied} and {self.sigma}')
 
 
 @dataclass
