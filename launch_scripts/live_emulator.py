@@ -51,12 +51,18 @@ def main(argv=None) -> int:
     args.output.mkdir(parents=True, exist_ok=True)
     from sensor_msgs.msg import PointCloud2
     with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch:
+        mapping_graph(group, str(WORKSPACE / 'config' / 'mapping.yaml'), str(args.output),
+                      'live', autosave=args.autosave)
+        # The map's reader in place before the first pose: the occupancy node can take
+        # seconds to start (its kernels), and what registration sent before was lost.
+        if not watch.wait_reader('occupancy_node', timeout=60.0):
+            print('[launch] occupancy_node did not subscribe to registration/points within '
+                  '60 s; stopping', flush=True)
+            return 1
         group.start('emulator', ['liberty_emulator', '--port', port, '--motion', args.motion])
         group.start('driver', ['liberty_driver', '--ros-args', '--params-file',
                                str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
                                '-p', f'port:={port}', '-p', f'output_format:={args.format}'])
-        mapping_graph(group, str(WORKSPACE / 'config' / 'mapping.yaml'), str(args.output),
-                      'live', autosave=args.autosave)
         url = start_view(group, args)
         print(f'[launch] live graph on {port}; Ctrl-C to stop', flush=True)
         if url:

@@ -808,6 +808,7 @@ def test_sensor_model_refuses_bad_values():
            dict(clamp_min=0.0), dict(prior=0.97), dict(p_z_given_not_occupied=0.0),
            dict(p_z_given_not_occupied=1.0), dict(p_z_given_not_occupied=1.2),
            dict(p_z_given_not_occupied=-0.1), dict(sigma=0.0), dict(sigma=-0.002),
+           dict(sigma=1e-200),
            dict(distance_to='corner'), dict(evidence_rate=-1.0), dict(visit_gap=-0.1)]
     for kwargs in bad:
         with pytest.raises(ValueError):

@@ -259,6 +259,7 @@ class Soak:
             # so that the bag and the map start from the same one; the faults are timed
             # from the emulator's start.
             if not (self._wait_lines(r'bag_record: recording', 5, 60.0)
+                    and watch.wait_reader('occupancy_node', timeout=60.0)
                     and watch.wait_connected(publishers=1, subscribers=3, timeout=60.0,
                                              settle=1.0)):
                 self.problems.append('the recorder and the mapping nodes did not connect '

@@ -175,7 +175,8 @@ class SensorModel:
             raise ValueError('need 0 < clamp_min < prior < clamp_max < 1')
         # sigma squared, not sigma: eq. 3 divides by it (2e-285 m passed "> 0" and its
         # square was 0 -- a damaged map file found by fuzzing)
-        if not 0.0 < self.p_z_given_not_occupied < 1.0 or not self.sigma ** 2 > 0:
+        if not (0.0 < self.p_z_given_not_occupied < 1.0 and self.sigma > 0
+                and self.sigma ** 2 > 0):
             raise ValueError(f'need 0 < P(Z|not O) < 1 and sigma > 0 (with a square above '
                              f'0), not {self.p_z_given_not_occupied} and {self.sigma}')
 

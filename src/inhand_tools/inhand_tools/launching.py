@@ -284,6 +284,22 @@ class TopicWatch:
             time.sleep(0.05)
         return False
 
+    def wait_reader(self, node_name: str, timeout: float = 60.0, settle: float = 0.5) -> bool:
+        """Until the node ``node_name`` subscribes to the topic (other readers, such as a
+        viewer, do not count), then ``settle`` s for the match: what is published before
+        the reader matched is not delivered to it."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if any(info.node_name == node_name
+                   for info in self._node.get_subscriptions_info_by_topic(self._resolved())):
+                time.sleep(settle)
+                return True
+            time.sleep(0.05)
+        return False
+
+    def _resolved(self) -> str:
+        return self._node.resolve_topic_name(self.topic)
+
     def wait_first(self, timeout: float) -> bool:
         """Until a message has arrived (False if none within ``timeout``)."""
         deadline = time.monotonic() + timeout
