@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import tempfile
@@ -16,6 +18,7 @@ from types import SimpleNamespace
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+from rclpy.duration import Duration
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -29,11 +32,18 @@ WORKSPACE = pathlib.Path(__file__).resolve().parents[1]
 executable_path = executable
 
 
+def _remove_file(path: str) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
+
+
 class Process:
-    """A workspace executable in the background, its output kept in a file."""
+    """A workspace executable in the background, its output kept in a file (removed when
+    the test process ends; a test may read a process's output after it stopped)."""
 
     def __init__(self, args: list[str]):
         self.log = tempfile.NamedTemporaryFile('w+', prefix='proc-', suffix='.log', delete=False)
+        atexit.register(_remove_file, self.log.name)
         self.popen = subprocess.Popen([executable_path(args[0]), *args[1:]], stdout=self.log,
                                       stderr=subprocess.STDOUT, env=dict(os.environ),
                                       start_new_session=True)
@@ -43,6 +53,23 @@ class Process:
 
     def alive(self) -> bool:
         return self.popen.poll() is None
+
+    def wait_for_matches(self, topics, other_end: str = 'publisher',
+                         timeout: float = 30.0) -> None:
+        """Wait until the node logged a match on each topic (``topic: N publisher(s)``,
+        inhand_common.ros_matches): its reader then takes whatever is published next."""
+        patterns = {topic: re.compile(rf'\]: {re.escape(topic)}: [1-9][0-9]* {other_end}\(s\)')
+                    for topic in topics}
+        deadline = time.monotonic() + timeout
+        while True:
+            output = self.output()
+            missing = [t for t, pattern in patterns.items() if not pattern.search(output)]
+            if not missing:
+                return
+            assert time.monotonic() < deadline, \
+                f'{self.popen.args[0]} matched no {other_end} on {missing}:\n{output}'
+            assert self.alive(), f'{self.popen.args[0]} ended:\n{output}'
+            time.sleep(0.05)
 
     def interrupt(self, timeout: float = 10.0) -> int:
         """Ctrl-C, as a user would; kills the group if it does not end within ``timeout``."""
@@ -168,18 +195,23 @@ class PosePublisher:
         self.publishers = {name: self.node.create_publisher(PoseStamped, f'polhemus/{name}/pose',
                                                             qos) for name in names}
 
-    def wait_for_subscribers(self, timeout: float = 20.0) -> None:
+    def wait_for_subscribers(self, timeout: float = 20.0, reader: Process | None = None) -> None:
+        """Wait until our writers see a reader on every topic, and with ``reader`` (a
+        registration node) until that node's readers logged our writers too."""
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if all(p.get_subscription_count() > 0 for p in self.publishers.values()):
-                # Our writers see the readers; the readers may not see our writers yet, and
-                # a volatile reader that matches late drops what came before the match: a
-                # lost first object pose drops every fingertip before it (a CI run lost
-                # 84 of 720 points so). Let discovery settle both ways, as CloudCounter does.
-                time.sleep(0.5)
-                return
+        while not all(p.get_subscription_count() > 0 for p in self.publishers.values()):
+            if time.monotonic() > deadline:
+                raise AssertionError('no subscriber for the pose topics')
             time.sleep(0.05)
-        raise AssertionError('no subscriber for the pose topics')
+        # Our writers see the readers; the readers may not see our writers yet, and a
+        # volatile reader that matches late drops what came before the match: a lost first
+        # object pose drops every fingertip before it (a CI run lost 84 of 720 points so,
+        # and a loaded one 38 of 2,880 half a second after our writers matched).
+        if reader is not None:
+            reader.wait_for_matches([f'polhemus/{name}/pose' for name in self.publishers],
+                                    timeout=max(deadline - time.monotonic(), 1.0))
+        else:   # a reader that does not log its matches: let discovery settle both ways
+            time.sleep(0.5)
 
     def publish(self, frames, rate_factor: float = 2.0, frame_rate: float = 240.0) -> None:
         from inhand_common.ros_time import stamp_from_seconds
@@ -197,6 +229,11 @@ class PosePublisher:
             ahead = k / (frame_rate * rate_factor) - (time.monotonic() - start)
             if ahead > 0:
                 time.sleep(ahead)
+        # Everything in the readers' hands before the caller closes us: a writer destroyed
+        # with samples unacknowledged takes them along (a loaded run lost 1,184 of 2,880).
+        for name, publisher in self.publishers.items():
+            assert publisher.wait_for_all_acked(Duration(seconds=30)), \
+                f'polhemus/{name}/pose: the readers did not take every pose within 30 s'
 
     def close(self):
         self.node.destroy_node()

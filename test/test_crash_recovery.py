@@ -32,13 +32,11 @@ def test_autosave_kill_9_and_resume_from_the_autosave(tmp_path):
     occupancy = ['occupancy_node', *ros, '-p', f'output_dir:={tmp_path}']
     with running(['registration_node', *ros]) as registration:
         with running([*occupancy, '-p', 'autosave_period:=0.5']) as first:
-            deadline = time.monotonic() + 20      # registration -> occupancy matched first
-            while 'registration/points: 1 subscriber' not in registration.output():
-                assert time.monotonic() < deadline, registration.output()
-                time.sleep(0.05)
+            # registration -> occupancy matched first
+            registration.wait_for_matches(['registration/points'], 'subscriber')
             publisher = PosePublisher(['thumb', 'index', 'middle'])
             try:
-                publisher.wait_for_subscribers()
+                publisher.wait_for_subscribers(reader=registration)
                 publisher.publish(fingers, rate_factor=4.0)
             finally:
                 publisher.close()

@@ -80,8 +80,13 @@ def test_published_poses_equal_the_emulators(output_format, position_tol, quater
         snapshot = listener.snapshot()
         sent = list(emulator.sent_frames)
     frames = frames_by_stamp(snapshot)
-    # One stamp per tracker frame: every stamp carries all four stations exactly once.
-    assert all(len(f) == 4 for f in frames.values())
+    # Discovery matches our four readers with the driver's writers one topic at a time (a
+    # loaded CI run showed it), so the first frames received may lack a station. From the
+    # first whole frame on, every stamp carries all four stations exactly once.
+    sizes = [len(f) for f in frames.values()]
+    first = sizes.index(4)
+    assert all(size == 4 for size in sizes[first:]), sizes
+    frames = dict(list(frames.items())[first:])
     indices = match_to_sent(frames, sent, position_tol, quaternion_tol)
     # Received in order, none missing between the first and the last one received.
     assert indices == list(range(indices[0], indices[0] + len(indices)))

@@ -285,7 +285,7 @@ def test_frames_and_diagnostics_of_a_hand_whose_object_sensor_falls_silent():
     try:
         with running(['registration_node', '--ros-args', '--params-file', config,
                       '-p', 'frame_prefix:=left_hand/']) as registration:
-            publisher.wait_for_subscribers()
+            publisher.wait_for_subscribers(reader=registration)
             # The statuses of the 2 s of data must not be lost to discovery (up to 3 s):
             # one status first, then the data.
             listener.wait_for(lambda: listener.of('registration_node'), 15, 'a first status')

@@ -49,7 +49,6 @@ import time
 
 import numpy as np
 from geometry_msgs.msg import PointStamped
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
@@ -62,6 +61,7 @@ from inhand_common.parameters import ParameterError
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
 from inhand_common.ros_clock import steady_timer
 from inhand_common.ros_diagnostics import NodeDiagnostics
+from inhand_common.ros_matches import logged_subscription_matches
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_transforms import Transform, TransformPublisher
 from inhand_mapping.cloud_layouts import unpack_registered, vision_log_odds
@@ -103,7 +103,7 @@ class OccupancyNode(Node):
         self.activity = OccupancyActivity()
         self._points_sub = self.create_subscription(
             PointCloud2, 'registration/points', self._on_points, POINTS_QOS,
-            event_callbacks=SubscriptionEventCallbacks(matched=self._on_points_matched))
+            event_callbacks=logged_subscription_matches(self, 'registration/points'))
         self.create_subscription(PointCloud2, 'occupancy/textured', self._on_textured, MAP_QOS)
         self._touch_cloud = None
         if config.fusion != 'none':
@@ -293,9 +293,6 @@ class OccupancyNode(Node):
         self.activity.pending = self.grid.pending
         self.activity.publishers = self._points_sub.get_publisher_count()
         return self.health.report(now, self.grid.counts, self.activity, problems)
-
-    def _on_points_matched(self, status) -> None:
-        self.get_logger().info(f'registration/points: {status.current_count} publisher(s)')
 
     def close(self) -> None:
         """At Ctrl-C or SIGTERM: what was mapped since the last save is saved."""

@@ -27,7 +27,6 @@ import time
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
-from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
@@ -37,6 +36,7 @@ from inhand_common.node_runner import run_node
 from inhand_common.point_cloud import serialize_point_cloud2
 from inhand_common.ros_clock import steady_timer
 from inhand_common.ros_diagnostics import NodeDiagnostics
+from inhand_common.ros_matches import logged_publisher_matches, logged_subscription_matches
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_nanoseconds, stamp_from_seconds
 from inhand_common.ros_transforms import Transform, TransformPublisher
@@ -64,15 +64,18 @@ class RegistrationNode(Node):
         self._raw_objects: list[bytes] = []
         for topic, index in self.config.finger_topics.items():
             self.create_subscription(PoseStamped, topic, self._raw_fingertips[index].append,
-                                     POSE_QOS, raw=True)
+                                     POSE_QOS, raw=True,
+                                     event_callbacks=logged_subscription_matches(self, topic))
         if self.config.object_topic is not None:
-            self.create_subscription(PoseStamped, self.config.object_topic,
-                                     self._raw_objects.append, POSE_QOS, raw=True)
+            self.create_subscription(
+                PoseStamped, self.config.object_topic, self._raw_objects.append, POSE_QOS,
+                raw=True, event_callbacks=logged_subscription_matches(self,
+                                                                      self.config.object_topic))
         # Points published while no reader is matched reach nobody (the topic is volatile):
         # the matches are logged and such points counted, so a loss is never silent.
         self._points = self.create_publisher(
             PointCloud2, 'registration/points', POINTS_QOS,
-            event_callbacks=PublisherEventCallbacks(matched=self._on_points_matched))
+            event_callbacks=logged_publisher_matches(self, 'registration/points'))
         self.activity = RegistrationActivity()
         self._taken = 0        # pose messages taken in (diagnostics: is data arriving?)
         self._object_frame = self.create_publisher(PoseStamped, 'registration/object_frame',
@@ -151,9 +154,6 @@ class RegistrationNode(Node):
     def _report(self, now: float, problems: Problems) -> tuple[str, dict[str, object]]:
         self.activity.subscribers = self._points.get_subscription_count()
         return self.health.report(now, self.registrar.stats, self.activity, problems)
-
-    def _on_points_matched(self, status) -> None:
-        self.get_logger().info(f'registration/points: {status.current_count} subscriber(s)')
 
     def close(self) -> None:
         if self.activity.unheard:
