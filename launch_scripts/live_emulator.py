@@ -24,6 +24,7 @@ from inhand_tools.launching import (
     ProcessGroup,
     TopicWatch,
     add_view_arguments,
+    driver_command,
     mapping_graph,
     save_when_drained,
     start_view,
@@ -60,9 +61,8 @@ def main(argv=None) -> int:
                   '60 s; stopping', flush=True)
             return 1
         group.start('emulator', ['liberty_emulator', '--port', port, '--motion', args.motion])
-        group.start('driver', ['liberty_driver', '--ros-args', '--params-file',
-                               str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
-                               '-p', f'port:={port}', '-p', f'output_format:={args.format}'])
+        group.start('driver', driver_command(str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
+                                             port, f'output_format:={args.format}'))
         url = start_view(group, args)
         print(f'[launch] live graph on {port}; Ctrl-C to stop', flush=True)
         if url:

@@ -31,7 +31,7 @@ import sys
 import time
 from pathlib import Path
 
-from inhand_tools.launching import ProcessGroup, mapping_graph
+from inhand_tools.launching import ProcessGroup, driver_command, mapping_graph
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 EXIT_CANNOT = 3
@@ -214,9 +214,8 @@ def main(argv=None) -> int:
         tracker = hosts.dds_environment('tracker', args.output)
         group.start('emulator', ['liberty_emulator', '--port', port], tracker,
                     hosts.prefix('tracker'))
-        group.start('driver', ['liberty_driver', '--ros-args', '--params-file',
-                               str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
-                               '-p', f'port:={port}'], tracker, hosts.prefix('tracker'))
+        group.start('driver', driver_command(str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
+                                             port), tracker, hosts.prefix('tracker'))
         started = time.monotonic()
         if hosts.wait_for_stream(FLOWING, timeout=10.0 if args.without_peers else 30.0):
             group.say(f'[launch] poses flow into the mapper host '

@@ -13,6 +13,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
+from inhand_tools.launching import driver_command
 from polhemus_liberty.emulator import LibertyEmulator
 from polhemus_liberty.motion import BuiltinMotion, load_plhm_text
 from ros_helpers import WORKSPACE, listening, running
@@ -27,10 +28,8 @@ def link_path() -> str:
 
 
 def driver_args(port: str, *extra: str) -> list[str]:
-    return ['liberty_driver', '--ros-args', '--params-file',
-            str(WORKSPACE / 'config' / 'liberty_emulator.yaml'), '-p', f'port:={port}',
-            '-p', 'silence_timeout:=0.5', '-p', 'reconnect_period:=0.1',
-            *[a for pair in (('-p', e) for e in extra) for a in pair]]
+    return driver_command(str(WORKSPACE / 'config' / 'liberty_emulator.yaml'), port,
+                          'silence_timeout:=0.5', 'reconnect_period:=0.1', *extra)
 
 
 def frames_by_stamp(snapshot) -> dict[tuple[int, int], dict[str, object]]:

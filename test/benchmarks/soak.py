@@ -237,7 +237,13 @@ class Soak:
     def run(self) -> int:
         from sensor_msgs.msg import PointCloud2
 
-        from inhand_tools.launching import ProcessGroup, TopicWatch, mapping_graph, save_when_drained
+        from inhand_tools.launching import (
+            ProcessGroup,
+            TopicWatch,
+            driver_command,
+            mapping_graph,
+            save_when_drained,
+        )
         print(f'[soak] {self.args.minutes:g} min at 4 x {RATE:g} Hz, a fault every '
               f'{self.args.fault_every:g} s ({len(self.faults)} in all), occupancy_node killed '
               f'at {self.kill_at:g} s; output in {self.out}', flush=True)
@@ -252,9 +258,8 @@ class Soak:
                           autosave=self.args.autosave)
             self.lives['registration'] = self._pid('registration')
             self.lives['occupancy'] = self._pid('occupancy')
-            self._start('driver', ['liberty_driver', '--ros-args', '--params-file',
-                                   str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
-                                   '-p', f'port:={self.port}'])
+            self._start('driver', driver_command(
+                str(WORKSPACE / 'config' / 'liberty_emulator.yaml'), self.port))
             # Every reader in place before the first frame (the driver waits for its port),
             # so that the bag and the map start from the same one; the faults are timed
             # from the emulator's start.

@@ -25,8 +25,9 @@ from pathlib import Path
 
 from inhand_tools.parent_death import command_with_parent_death
 
-__all__ = ['ProcessGroup', 'TopicWatch', 'add_view_arguments', 'call_trigger', 'executable',
-           'hold_view', 'mapping_graph', 'save_when_drained', 'start_occupancy', 'start_view']
+__all__ = ['ProcessGroup', 'TopicWatch', 'add_view_arguments', 'call_trigger', 'driver_command',
+           'executable', 'hold_view', 'mapping_graph', 'save_when_drained', 'start_occupancy',
+           'start_view']
 
 
 def executable(name: str) -> str:
@@ -218,6 +219,15 @@ def start_occupancy(group: ProcessGroup, config: str, output_dir: str, map_name:
     return group.start('occupancy', args, env, prefix)
 
 
+def driver_command(config: str, port: str, *parameters: str) -> list[str]:
+    """``liberty_driver``'s command line: its parameter file, the serial port, and more
+    ``name:=value`` parameters."""
+    args = ['liberty_driver', '--ros-args', '--params-file', config, '-p', f'port:={port}']
+    for parameter in parameters:
+        args += ['-p', parameter]
+    return args
+
+
 def _ros_arguments(config: str, namespace: str | None, sim_time: bool) -> list[str]:
     ros_args = ['--ros-args', '--params-file', config]
     if sim_time:
@@ -291,14 +301,12 @@ class TopicWatch:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if any(info.node_name == node_name
-                   for info in self._node.get_subscriptions_info_by_topic(self._resolved())):
+                   for info in self._node.get_subscriptions_info_by_topic(
+                       self._node.resolve_topic_name(self.topic))):
                 time.sleep(settle)
                 return True
             time.sleep(0.05)
         return False
-
-    def _resolved(self) -> str:
-        return self._node.resolve_topic_name(self.topic)
 
     def wait_first(self, timeout: float) -> bool:
         """Until a message has arrived (False if none within ``timeout``)."""
