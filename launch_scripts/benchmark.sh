@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|validation|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -22,7 +22,13 @@
 #                      static/tracked, F / precision / recall / stray cells / touched surface
 #                      per session and a summary against the targets
 #                      (test/benchmarks/bench_quality.py: --quick, --objects, --speeds, --rates,
-#                      --modes, --duration, --jobs, --set NAME=VALUE, --keep DIR)
+#                      --modes, --duration, --jobs, --set NAME=VALUE, --keep DIR, --hand NAME=VALUE,
+#                      --sweep: the hand varied one property at a time, with the worst F and
+#                      precision per property value)
+#   validation         the touch map on ../shared/data/validation_sessions (an independent
+#                      generator's hands and meshes; a check, never tuned on) beside each
+#                      session's one-touch oracle (test/benchmarks/bench_validation.py:
+#                      --sessions, --set NAME=VALUE, --jobs, --keep DIR)
 #   latency            live-view latency: poses published at 240 Hz x 4 in real time ->
 #                      the cell in occupancy/updates, p50/p95 (test/benchmarks/
 #                      bench_live_latency.py: --duration S, --seed N)
@@ -51,11 +57,12 @@ declare -A BENCHMARKS=(
   [stereo-bags]=bench_stereo_bags.py
   [texture]=bench_texture.py
   [quality]=bench_quality.py
+  [validation]=bench_validation.py
   [latency]=bench_live_latency.py
   [fuzz]=fuzz.py
   [soak]=soak.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags texture quality latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags texture quality validation latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

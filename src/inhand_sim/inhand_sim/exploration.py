@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -63,19 +63,21 @@ from inhand_sim.objects import HeldRegion, SolidObject
 __all__ = [
     'CONTACT',
     'FINGERS',
+    'HAND_DEFAULTS',
     'SAMPLE_KINDS',
     'STRAY',
     'Exploration',
     'ExplorationSettings',
     'TrackerNoise',
     'explore',
+    'parse_hand_setting',
     'speed_range_around',
 ]
 
 FINGERS = ('thumb', 'index', 'middle')
 CONTACT = 1
 STRAY = 0
-SAMPLE_KINDS = ('transit', 'stroke', 'dwell', 'lift', 'away')
+SAMPLE_KINDS = ('transit', 'stroke', 'dwell', 'lift', 'away', 'hover')
 
 # The side of the object each finger prefers (object frame): thumb opposing the others.
 _FINGER_SIDES = {'thumb': (0.0, -1.0, 0.0), 'index': (0.25, 1.0, 0.0),
@@ -119,6 +121,80 @@ class ExplorationSettings:
     continuous_lifts: bool = True
     liftoff_duration_range: tuple = (0.08, 0.16)  # from the surface to the hover height, s
     min_height: float = 0.00005                  # off-surface samples at least this far off
+    # --- how the hand moves: other hands than the default one (HAND_PROPERTIES). Each
+    # default keeps the sessions made before these existed, bit for bit.
+    stroke_length_range: tuple | None = None     # m: each stroke's planned length (None: by
+                                                 # stroke_duration_range at its speed)
+    speed_profile: str = 'wave'                  # 'wave': the speed varies by speed_variation
+                                                 # within a stroke; 'bell': from rest to a
+                                                 # peak and back to rest (minimum jerk)
+    liftoff_height_range: tuple | None = None    # m: how far a lift-off rises (and a touch-
+                                                 # down starts) off the surface (None: just
+                                                 # past `clearance`)
+    liftoff_speed_range: tuple | None = None     # m/s: mean speed of a lift-off or touch-down
+                                                 # (None: liftoff_duration_range); a speed
+                                                 # above height x rate is a flick within one frame
+    liftoff_angle_range: tuple = (0.0, 0.0)      # degrees from the normal of a lift-off or
+                                                 # touch-down: 0 along it, 45 oblique, 80
+                                                 # nearly tangential (towards the stroke)
+    hover_probability: float = 0.0               # after a stroke, the finger goes back over it
+                                                 # this often, hovering close above the surface
+    hover_height_range: tuple = (0.002, 0.006)   # m: how high it hovers
+    tremor_amplitude: float = 0.0                # m: physiological tremor of every fingertip
+    tremor_frequency: float = 10.0               # Hz
+    held_scale: float = 1.0                      # the holding hand's region, scaled (radii)
+
+
+# The hand's properties beyond the default hand, and their defaults (sessions written with
+# these values leave them out of their settings, so older sessions stay byte for byte).
+HAND_DEFAULTS = {name: getattr(ExplorationSettings(), name) for name in (
+    'stroke_length_range', 'speed_profile', 'liftoff_height_range', 'liftoff_speed_range',
+    'liftoff_angle_range', 'hover_probability', 'hover_height_range', 'tremor_amplitude',
+    'tremor_frequency', 'held_scale')}
+
+
+# What each hand property takes, for command lines: (kind, low, high, unit). Ranges are two
+# numbers "a,b" with low <= a <= b <= high; "none" restores a None default.
+_HAND_VALUES = {
+    'stroke_length_range': ('range', 0.005, 1.0, 'm'),
+    'speed_profile': ('choice', ('wave', 'bell'), None, ''),
+    'liftoff_height_range': ('range', 0.001, 0.2, 'm'),
+    'liftoff_speed_range': ('range', 0.005, 5.0, 'm/s'),
+    'liftoff_angle_range': ('range', 0.0, 85.0, 'degrees'),
+    'hover_probability': ('number', 0.0, 1.0, ''),
+    'hover_height_range': ('range', 0.0005, 0.05, 'm'),
+    'tremor_amplitude': ('number', 0.0, 0.01, 'm'),
+    'tremor_frequency': ('number', 0.1, 50.0, 'Hz'),
+    'held_scale': ('number', 0.0, 5.0, ''),
+    'transit_speed': ('number', 0.05, 3.0, 'm/s'),
+    'speed_variation': ('number', 0.0, 0.9, ''),
+}
+
+
+def parse_hand_setting(text: str) -> tuple[str, object]:
+    """``NAME=VALUE`` of a hand property (:data:`HAND_DEFAULTS`, ``transit_speed``,
+    ``speed_variation``) as (name, typed value); ValueError naming the allowed values."""
+    name, sep, value = text.partition('=')
+    name, value = name.strip(), value.strip()
+    if not sep or name not in _HAND_VALUES:
+        raise ValueError(f'{text!r}: expected NAME=VALUE with NAME one of {", ".join(_HAND_VALUES)}')
+    kind, low, high, unit = _HAND_VALUES[name]
+    if kind == 'choice':
+        if value not in low:
+            raise ValueError(f'{name}={value}: choose one of {", ".join(low)}')
+        return name, value
+    if kind == 'range' and value.lower() == 'none' and HAND_DEFAULTS.get(name, 0) is None:
+        return name, None
+    try:
+        numbers = tuple(float(v) for v in value.split(','))
+    except ValueError:
+        numbers = ()
+    count = 2 if kind == 'range' else 1
+    if len(numbers) != count or not all(low <= v <= high for v in numbers) or (
+            kind == 'range' and numbers[0] > numbers[1]):
+        shape = 'two numbers a,b with a <= b' if kind == 'range' else 'a number'
+        raise ValueError(f'{name}={value}: {shape} in [{low:g}, {high:g}] {unit}'.rstrip())
+    return name, (numbers if kind == 'range' else numbers[0])
 
 
 def speed_range_around(mean: float, spread: float = 0.2) -> tuple[float, float]:
@@ -279,7 +355,8 @@ def _build_pool(obj: SolidObject, held: HeldRegion, table: bool, settings: Explo
         normals = np.concatenate([normals, n[ok]])
     starts, normals = starts[:st.pool_size], normals[:st.pool_size]
     s_count = len(starts)
-    max_len = st.stroke_duration_range[1] * st.speed_range[1] * (1.0 + st.speed_variation)
+    max_len = (st.stroke_length_range[1] if st.stroke_length_range is not None else
+               st.stroke_duration_range[1] * st.speed_range[1] * (1.0 + st.speed_variation))
     k_steps = math.ceil(max_len / st.stroke_step)
     modes = rng.choice(len(_MODES), size=s_count, p=np.asarray(st.mode_probabilities))
     heading = _normalize(np.cross(normals, rng.normal(size=(s_count, 3))))
@@ -465,15 +542,15 @@ def _lift_bump(point: np.ndarray, normal: np.ndarray, side: np.ndarray, t0: floa
     return fn
 
 
-def _rise(point: np.ndarray, normal: np.ndarray, t0: float, duration: float, height: float,
+def _rise(point: np.ndarray, direction: np.ndarray, t0: float, duration: float, height: float,
           down: bool = False) -> Callable[[np.ndarray], np.ndarray]:
-    """A fingertip leaving the surface at ``point`` along ``normal``: from rest to ``height``
-    over ``duration`` from ``t0``, the height growing as the square of the time (or, ``down``,
-    the same backwards: coming down to rest on it)."""
+    """A fingertip leaving the surface at ``point`` along ``direction`` (the normal, or
+    oblique): from rest to ``height`` over ``duration`` from ``t0``, the distance growing as
+    the square of the time (or, ``down``, the same backwards: coming down to rest on it)."""
     def fn(times):
         u = np.clip((times - t0) / duration, 0.0, 1.0)
         rise = (1.0 - u) ** 2 if down else u ** 2
-        return point + (height * rise)[:, None] * normal
+        return point + (height * rise)[:, None] * direction
     return fn
 
 
@@ -485,7 +562,7 @@ class _StrokeTrack:
     phase))`` (``amp`` the settings' speed variation; period and phase drawn per stroke),
     and it stops at the path's end."""
 
-    def __init__(self, pool: _StrokePool, index: int, speed: float,
+    def __init__(self, pool: _StrokePool, index: int, speed: float, planned: float,
                  settings: ExplorationSettings, rng: np.random.Generator):
         n_valid = pool.lengths[index] + 1
         self.path = pool.paths[index, :n_valid]
@@ -496,10 +573,17 @@ class _StrokeTrack:
         self.omega = 2 * math.pi / rng.uniform(1.5, 4.0)
         self.phase = rng.uniform(0, 2 * math.pi)
         self.amp = settings.speed_variation
+        # 'bell': the planned length (or the path, if shorter) from rest to rest at the mean
+        # speed, the speed a minimum-jerk profile peaking at 1.875 times the mean.
+        self.bell = settings.speed_profile == 'bell'
+        self.bell_length = min(self.total, speed * planned)
+        self.bell_time = self.bell_length / speed
 
     def arc(self, tau):
         """Arc length slid after ``tau`` s of sliding (the integral of the speed)."""
         tau = np.asarray(tau, dtype=float)
+        if self.bell:
+            return self.bell_length * _min_jerk(tau / max(self.bell_time, 1e-9))
         s = self.speed * (tau + self.amp / self.omega
                           * (math.cos(self.phase) - np.cos(self.omega * tau + self.phase)))
         return np.minimum(s, self.total)
@@ -511,6 +595,8 @@ class _StrokeTrack:
     def sliding_time(self, planned: float) -> float:
         """Sliding time needed to cover the path, capped by the planned duration (resolved
         to 1/2000 of it)."""
+        if self.bell:
+            return min(self.bell_time, planned)
         taus = np.linspace(0.0, planned, 2000)
         return float(taus[min(int(np.searchsorted(self.arc(taus), self.total)), len(taus) - 1)])
 
@@ -592,19 +678,30 @@ def _slide_with_lifts(track: _StrokeTrack, episodes: list[_LiftEpisode], active:
 
 def _stroke_segments(pool: _StrokePool, index: int, t0: float, duration: float, speed: float,
                      settings: ExplorationSettings, rng, stroke_id: int,
-                     limit: float) -> tuple[list, float, np.ndarray, np.ndarray]:
+                     limit: float) -> tuple[list, float, np.ndarray, np.ndarray, np.ndarray]:
     """Segments of one stroke (with its involuntary lifts) starting at ``t0``, ending by
-    ``limit``. Returns (segments, end time, last contact point, its normal)."""
-    track = _StrokeTrack(pool, index, speed, settings, rng)
+    ``limit``. Returns (segments, end time, last contact point, its normal, the stroke's
+    direction there)."""
+    track = _StrokeTrack(pool, index, speed, duration, settings, rng)
     active = track.sliding_time(duration)
     episodes = _draw_lift_episodes(active, settings, rng)
     low = 0.0 if settings.continuous_lifts else settings.clearance + 0.0005
     segments = _slide_with_lifts(track, episodes, active, t0, limit, stroke_id, low)
     if not segments:
-        return [], t0, track.path[0], track.normals[0]
+        return [], t0, track.path[0], track.normals[0], _path_direction(track.path, 0)
     end_point = segments[-1].fn(np.array([segments[-1].t1]))[0]
     i_end = int(np.argmin(np.linalg.norm(track.path - end_point, axis=1)))
-    return segments, segments[-1].t1, end_point, track.normals[i_end]
+    return (segments, segments[-1].t1, end_point, track.normals[i_end],
+            _path_direction(track.path, i_end))
+
+
+def _path_direction(path: np.ndarray, i: int) -> np.ndarray:
+    """The unit direction of a polyline at its point ``i`` (zero for a single point)."""
+    if len(path) < 2:
+        return np.zeros(3)
+    a, b = (i - 1, i) if i > 0 else (0, 1)
+    step = path[b] - path[a]
+    return step / max(float(np.linalg.norm(step)), 1e-12)
 
 
 # --- planning the three fingers ----------------------------------------------------------
@@ -620,6 +717,7 @@ class _Finger:
     normal: np.ndarray          # outward direction at ``pos`` (the surface normal below it)
     contact: np.ndarray | None = None   # the surface point where its last stroke ended, if it
                                         # is still there at ``t`` (it may slide on from there)
+    lift: tuple = (None, 0.0)   # how it leaves ``contact`` for ``pos``: direction, distance
     pending: tuple[int, int] | None = None  # (grip, pool index) of the stroke an away phase
                                             # brought it to, to be done next
     strokes: int = 0            # strokes begun: the id of the next one
@@ -716,6 +814,31 @@ class _Explorer:
             d2 = np.min(np.sum((pool.starts[:, None, :] - sub[None, :, :]) ** 2, axis=2), axis=1)
             self.explored[key] += d2 < 0.012 ** 2
 
+    def lifted(self, normal: np.ndarray, towards: np.ndarray) -> tuple[np.ndarray, float]:
+        """How a finger leaves the surface (or comes down onto it), as a unit direction and
+        a distance: just past ``clearance`` along the ``normal``, or with the hand's
+        ``liftoff_height_range`` and ``liftoff_angle_range``, tilted from the normal towards
+        the tangent direction ``towards`` (random where it has none)."""
+        st = self.st
+        if st.liftoff_height_range is None and st.liftoff_angle_range == (0.0, 0.0):
+            return normal, self.hover
+        height = (self.hover if st.liftoff_height_range is None
+                  else self.rng.uniform(*st.liftoff_height_range))
+        direction = normal
+        if st.liftoff_angle_range != (0.0, 0.0):
+            angle = math.radians(self.rng.uniform(*st.liftoff_angle_range))
+            tangent = towards - np.dot(towards, normal) * normal
+            if np.linalg.norm(tangent) < 1e-6:
+                tangent = np.cross(normal, self.rng.normal(size=3))
+            direction = math.cos(angle) * normal + math.sin(angle) * _normalize(tangent)
+        return direction, height
+
+    def _rise_time(self, distance: float) -> float:
+        """How long a lift-off or touch-down over ``distance`` takes."""
+        if self.st.liftoff_speed_range is None:
+            return float(self.rng.uniform(*self.st.liftoff_duration_range))
+        return distance / float(self.rng.uniform(*self.st.liftoff_speed_range))
+
     # --- the moves ---
 
     def plan(self) -> None:
@@ -738,8 +861,13 @@ class _Explorer:
             if t >= limit - 0.4:
                 self._away(finger, window)
                 return
-        planned = self.rng.uniform(*self.st.stroke_duration_range)
-        speed = self.rng.uniform(*self.st.speed_range)
+        if self.st.stroke_length_range is None:
+            planned = self.rng.uniform(*self.st.stroke_duration_range)
+            speed = self.rng.uniform(*self.st.speed_range)
+        else:
+            length = self.rng.uniform(*self.st.stroke_length_range)
+            speed = self.rng.uniform(*self.st.speed_range)
+            planned = length / speed
         if finger.pending is not None:
             (gi, index), finger.pending = finger.pending, None
         else:
@@ -760,14 +888,15 @@ class _Explorer:
         t_back = max(window[1] + self.rng.uniform(0.0, 0.4), t + 0.1)
         gi, index = self.choose_stroke(finger, t_back, finger.pos)
         pool = self.pool_list[gi]
-        b = pool.starts[index] + pool.start_normals[index] * self.hover
+        down, height = self.lifted(pool.start_normals[index], -self._heading(pool, index))
+        b = pool.starts[index] + down * height
         finger.segments.append(_away_segment(self.obj, self.surroundings, finger.pos, finger.normal, t, b,
                                              pool.start_normals[index], t_back, self.st, self.rng,
                                              self.object_pose))
         self.events.append((finger.name, 'away', t, t_back))
         finger.t, finger.pos, finger.normal = t_back, b, pool.start_normals[index]
         finger.contact = None
-        finger.t = self._touch_down(finger, t_back, pool.starts[index], pool.start_normals[index], 'away')
+        finger.t = self._touch_down(finger, t_back, pool.starts[index], down, height, 'away')
         finger.pending = (gi, index)
 
     def _lift_off(self, finger: _Finger, t: float, kind: str, latest: float = math.inf) -> float:
@@ -776,22 +905,31 @@ class _Explorer:
         by ``latest`` at the latest. Returns the time it is up there."""
         if not self.st.continuous_lifts or finger.contact is None:
             return t
-        rise = min(self.rng.uniform(*self.st.liftoff_duration_range), latest - t)
-        finger.segments.append(_Segment(t, t + rise, kind, _rise(finger.contact, finger.normal, t, rise,
-                                                                 self.hover), False, near=True))
+        direction, height = finger.lift
+        rise = min(self._rise_time(height), latest - t)
+        finger.segments.append(_Segment(t, t + rise, kind,
+                                        _rise(finger.contact, direction, t, rise, height), False,
+                                        near=True))
         finger.contact = None
         return t + rise
 
-    def _touch_down(self, finger: _Finger, t: float, start: np.ndarray, normal: np.ndarray,
-                    kind: str) -> float:
-        """With continuous lifts, a finger hovering above ``start`` comes down onto it (the
-        end of ``kind``). Returns the time it is on the surface."""
+    def _touch_down(self, finger: _Finger, t: float, start: np.ndarray, direction: np.ndarray,
+                    height: float, kind: str) -> float:
+        """With continuous lifts, a finger ``height`` off the surface along ``direction``
+        from ``start`` comes down onto it (the end of ``kind``). Returns the time it is on
+        the surface."""
         if not self.st.continuous_lifts:
             return t
-        fall = self.rng.uniform(*self.st.liftoff_duration_range)
-        finger.segments.append(_Segment(t, t + fall, kind, _rise(start, normal, t, fall, self.hover,
-                                                                 down=True), False, near=True))
+        fall = self._rise_time(height)
+        finger.segments.append(_Segment(t, t + fall, kind,
+                                        _rise(start, direction, t, fall, height, down=True), False,
+                                        near=True))
         return t + fall
+
+    @staticmethod
+    def _heading(pool: _StrokePool, index: int) -> np.ndarray:
+        """The direction stroke ``index`` of ``pool`` sets off in."""
+        return _path_direction(pool.paths[index], 0)
 
     def _to_stroke(self, finger: _Finger, t: float, gi: int, index: int, speed: float, limit: float,
                    window: tuple[float, float] | None) -> float | None:
@@ -829,7 +967,8 @@ class _Explorer:
         is instead and the stroke goes back to the pool. Returns the arrival time, or None
         when waiting."""
         pool = self.pool_list[gi]
-        b = pool.starts[index] + pool.start_normals[index] * self.hover
+        down, height = self.lifted(pool.start_normals[index], -self._heading(pool, index))
+        b = pool.starts[index] + down * height
         waypoints = _air_waypoints(self.obj, self.surroundings, finger.pos, finger.normal, b,
                                    pool.start_normals[index], self.st, self.rng)
         length = np.sum(np.linalg.norm(np.diff(waypoints, axis=0), axis=1))
@@ -846,7 +985,7 @@ class _Explorer:
             t0, t0 + dt, 'transit',
             lambda times: _timed_polyline(waypoints, times, t0, t0 + dt, end_speed), False))
         self.events.append((finger.name, 'transit', t, t0 + dt))
-        return self._touch_down(finger, t0 + dt, pool.starts[index], pool.start_normals[index], 'transit')
+        return self._touch_down(finger, t0 + dt, pool.starts[index], down, height, 'transit')
 
     def _dwell(self, finger: _Finger, t: float, start: np.ndarray, limit: float) -> float:
         """Now and then the fingertip rests on the stroke's ``start`` for a moment (if that
@@ -867,21 +1006,55 @@ class _Explorer:
         pool = self.pool_list[gi]
         stroke_id = finger.strokes
         finger.strokes += 1
-        segments, t_end, end_point, end_normal = _stroke_segments(
+        segments, t_end, end_point, end_normal, end_direction = _stroke_segments(
             pool, index, t, planned, speed, self.st, self.rng, stroke_id, limit)
         if not segments:
-            lifted = pool.starts[index] + pool.start_normals[index] * self.hover
+            up, height = self.lifted(pool.start_normals[index], self._heading(pool, index))
+            lifted = pool.starts[index] + up * height
             if self.st.continuous_lifts:    # on the stroke's start: it lifts off from there
                 finger.t, finger.pos, finger.normal = t, lifted, pool.start_normals[index]
-                finger.contact = pool.starts[index]
+                finger.contact, finger.lift = pool.starts[index], (up, height)
             else:
                 self._hover(finger, t, max(limit, t), lifted, pool.start_normals[index])
             return
         finger.segments.extend(segments)
         self.events.append((finger.name, 'stroke', t, t_end))
         self.mark_explored(pool.paths[index, :pool.lengths[index] + 1])
-        finger.t, finger.pos, finger.normal = t_end, end_point + end_normal * self.hover, end_normal
-        finger.contact = end_point
+        up, height = self.lifted(end_normal, end_direction)
+        finger.t, finger.pos, finger.normal = t_end, end_point + up * height, end_normal
+        finger.contact, finger.lift = end_point, (up, height)
+        if self.st.hover_probability > 0 and self.rng.random() < self.st.hover_probability:
+            self._hover_back(finger, pool, index, end_point, speed, limit)
+
+    def _hover_back(self, finger: _Finger, pool: _StrokePool, index: int, end_point: np.ndarray,
+                    speed: float, limit: float) -> None:
+        """After a stroke the finger rises a few millimetres and goes back over part of it
+        at the stroke's speed without touching (``hover_height_range``), ending up there, off
+        the surface."""
+        path = pool.paths[index, :pool.lengths[index] + 1]
+        normals = pool.normals[index, :pool.lengths[index] + 1]
+        i_end = int(np.argmin(np.linalg.norm(path - end_point, axis=1)))
+        if i_end < 2:
+            return
+        height = float(self.rng.uniform(*self.st.hover_height_range))
+        back = max(2, int(round(i_end * self.rng.uniform(0.3, 1.0))))
+        above = (path + normals * height)[i_end:i_end - back - 1:-1] if i_end - back - 1 >= 0 \
+            else (path + normals * height)[i_end::-1]
+        t = finger.t
+        rise = min(height / 0.05, max(limit - t, 0.0))
+        finger.segments.append(_Segment(t, t + rise, 'hover',
+                                        _rise(end_point, normals[i_end], t, rise, height), False,
+                                        near=True))
+        t += rise
+        length = float(np.sum(np.linalg.norm(np.diff(above, axis=0), axis=1)))
+        t1 = min(t + length / speed, max(limit, t))
+        if t1 > t:
+            finger.segments.append(_Segment(t, t1, 'hover', _slide_along(above, t, t + length / speed),
+                                            False, near=True))
+        self.events.append((finger.name, 'hover', finger.t, t1))
+        where = _slide_along(above, t, t + length / speed)(np.array([t1]))[0]
+        finger.t, finger.pos, finger.normal = t1, where, normals[i_end]
+        finger.contact = None
 
     def _hover(self, finger: _Finger, t: float, until: float, point: np.ndarray,
                normal: np.ndarray) -> None:
@@ -895,12 +1068,15 @@ class _Explorer:
 
 
 def _sample_timelines(fingers: list[_Finger], times: np.ndarray, rate: float, obj: SolidObject,
-                      surroundings: _Surroundings, settings: ExplorationSettings):
+                      surroundings: _Surroundings, settings: ExplorationSettings,
+                      tremor: np.ndarray | None = None):
     """Every finger's segments evaluated at the tracker frames ``times`` (= k / ``rate``),
     each segment at the frames in [t0, t1). Contacts are put exactly on the surface; the
     samples of lifts, lift-offs and touch-downs at least ``min_height`` off it, at their
     height above the surface itself (:func:`_above_the_surface`), everything else at least
-    ``clearance`` off it. Returns positions (3, T, 3), contact, stroke and kind (3, T)."""
+    ``clearance`` off it. ``tremor`` (3, T, 3), if given, is added before that: on the
+    surface it moves the contact along it. Returns positions (3, T, 3), contact, stroke and
+    kind (3, T)."""
     n_frames = len(times)
     positions = np.zeros((3, n_frames, 3))
     contact = np.zeros((3, n_frames), dtype=bool)
@@ -918,6 +1094,8 @@ def _sample_timelines(fingers: list[_Finger], times: np.ndarray, rate: float, ob
             near[f, k0:k1] = seg.near
             stroke[f, k0:k1] = seg.stroke_id if seg.kind == 'stroke' else -1
             kind[f, k0:k1] = SAMPLE_KINDS.index(seg.kind)
+    if tremor is not None:
+        positions += tremor
     on = contact.reshape(-1)
     flat = positions.reshape(-1, 3)
     flat[on] = obj.project_to_surface(flat[on])
@@ -964,6 +1142,9 @@ def explore(obj: SolidObject, duration: float, rate: float, rng: np.random.Gener
     tracker frame, needed when there are away windows (the hand withdraws in the room).
     """
     grips = list(grips) if grips else [obj.static_grip]
+    if settings.held_scale != 1.0:
+        grips = [replace(grip, radii=tuple(r * settings.held_scale for r in grip.radii))
+                 for grip in grips]
     windows = sorted((float(a), float(b)) for a, b in away_windows)
     if windows and object_pose is None:
         raise ValueError('away windows need object_pose')
@@ -971,10 +1152,22 @@ def explore(obj: SolidObject, duration: float, rate: float, rng: np.random.Gener
     explorer = _Explorer(obj, duration, rng, settings, grips, windows, table, object_pose)
     explorer.plan()
     positions, contact, stroke, kind = _sample_timelines(explorer.fingers, times, rate, obj,
-                                                         explorer.surroundings, settings)
+                                                         explorer.surroundings, settings,
+                                                         _tremor(settings, times, rng))
     return Exploration(times=times, positions=positions, contact=contact, stroke=stroke,
                        grip=explorer.grip_indices(times), held_regions=explorer.grip_of, kind=kind,
                        events=explorer.events)
+
+
+def _tremor(settings: ExplorationSettings, times: np.ndarray, rng: np.random.Generator
+            ) -> np.ndarray | None:
+    """Each fingertip's tremor at ``times`` (3, T, 3): a sine of ``tremor_amplitude`` at
+    ``tremor_frequency`` on each axis, phases drawn per finger and axis; None without one."""
+    if settings.tremor_amplitude <= 0.0:
+        return None
+    phase = rng.uniform(0.0, 2.0 * math.pi, size=(3, 1, 3))
+    return settings.tremor_amplitude * np.sin(
+        2.0 * math.pi * settings.tremor_frequency * times[None, :, None] + phase)
 
 
 def _away_segment(obj, surroundings, a_obj, na_obj, ta, b_obj, nb_obj, tb, settings, rng,

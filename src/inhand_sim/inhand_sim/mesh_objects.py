@@ -48,6 +48,7 @@ __all__ = [
     'MeshError',
     'MeshObject',
     'load_mesh_object',
+    'mesh_object',
 ]
 
 MESH_SUFFIXES = ('.obj', '.stl', '.ply')
@@ -186,9 +187,6 @@ def load_mesh_object(path, *, name: str | None = None, scale: float = 1.0, up: s
     import trimesh
     path = Path(path)
     label = name if name is not None else str(path)
-    if not (scale > 0 and np.isfinite(scale)):
-        raise MeshError(f'mesh scale {scale} must be a positive number')
-    turn = _turn_up(up)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f'{path}: not a mesh file (OBJ, STL or PLY: {", ".join(MESH_SUFFIXES)})')
     try:
@@ -198,6 +196,22 @@ def load_mesh_object(path, *, name: str | None = None, scale: float = 1.0, up: s
     faces = np.asarray(getattr(mesh, 'faces', np.empty((0, 3))))
     if faces.ndim != 2 or len(faces) == 0:
         raise MeshError(f'{path}: no triangles in it')
+    return mesh_object(mesh, label, str(path), scale=scale, up=up, texture=texture,
+                       description=description if description is not None else
+                       f'mesh {path.name}: {len(faces):,} triangles',
+                       static_grip=static_grip, moving_grips=moving_grips)
+
+
+def mesh_object(mesh, label: str, source: str, *, scale: float = 1.0, up: str = 'z',
+                texture: str = 'scan', description: str = '',
+                static_grip: GripSpec = DEFAULT_STATIC_GRIP,
+                moving_grips: tuple[GripSpec, ...] = DEFAULT_MOVING_GRIPS) -> MeshObject:
+    """The object of a trimesh ``mesh`` (read from a file, or made by trimesh.creation),
+    named ``label``; ``source`` names it in refusals. MeshError if it cannot be an object."""
+    if not (scale > 0 and np.isfinite(scale)):
+        raise MeshError(f'mesh scale {scale} must be a positive number')
+    turn = _turn_up(up)
+    path = source
     if not mesh.is_watertight:
         open_edges = int(np.count_nonzero(np.bincount(mesh.edges_unique_inverse) != 2))
         raise MeshError(f'{path} is not watertight ({open_edges} edges not shared by exactly two '
@@ -215,14 +229,12 @@ def load_mesh_object(path, *, name: str | None = None, scale: float = 1.0, up: s
                         'workspace (set the scale: file units to metres)')
     vertices = vertices - (lo + hi) / 2
     obj = MeshObject(label, vertices, np.asarray(mesh.faces, dtype=np.int64), texture=texture,
-                     description=description if description is not None else
-                     f'mesh {path.name}: {len(faces):,} triangles',
-                     static_grip=static_grip, moving_grips=moving_grips)
+                     description=description, static_grip=static_grip, moving_grips=moving_grips)
     _check_resolved(obj, path)
     return obj
 
 
-def _check_resolved(obj: MeshObject, path: Path, tolerance: float = 0.0005,
+def _check_resolved(obj: MeshObject, path: str, tolerance: float = 0.0005,
                     allowed: float = 0.01) -> None:
     """Refuse a mesh whose distance grid misses its surface (parts thinner than about two
     grid steps): more than ``allowed`` of its surface farther than ``tolerance`` from the

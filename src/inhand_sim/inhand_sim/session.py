@@ -62,7 +62,14 @@ from inhand_common.rotations import (
 )
 from inhand_mapping.pose_cdr import encode_pose_stamped
 from inhand_sim.catalogue import load_object
-from inhand_sim.exploration import FINGERS, Exploration, ExplorationSettings, TrackerNoise, explore
+from inhand_sim.exploration import (
+    FINGERS,
+    HAND_DEFAULTS,
+    Exploration,
+    ExplorationSettings,
+    TrackerNoise,
+    explore,
+)
 from inhand_sim.objects import SolidObject
 from inhand_sim.stereo_rig import DEFAULT_VIEW_DIRECTION, RenderedPair, StereoRig, render_pair
 from inhand_sim.textures import surface_colour
@@ -160,6 +167,9 @@ class SessionSettings:
                  'mesh_scale': 1.0, 'mesh_up': 'z'}
         values = {key: value for key, value in asdict(self).items()
                   if not (key in unset and value == unset[key])}
+        # The hand's properties likewise when they are the default hand's.
+        values['exploration'] = {key: value for key, value in values['exploration'].items()
+                                 if not (key in HAND_DEFAULTS and value == HAND_DEFAULTS[key])}
         return json.dumps(values, sort_keys=True, separators=(',', ':'))
 
     @property

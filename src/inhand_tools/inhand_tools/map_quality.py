@@ -101,7 +101,8 @@ from inhand_tools.map_cells import Lattice, MapCells, cell_indices, is_bag
 __all__ = ['COLOUR_SCORE_KEYS', 'MAP_SCORE_KEYS', 'METRIC_LABELS', 'SurfaceTruth',
            'colour_metrics', 'colour_problem', 'evaluate', 'explored_mask', 'find_truth',
            'format_metric', 'frame_check', 'label_width', 'map_metrics', 'metrics_table',
-           'point_metrics', 'seen_cells', 'surface_truth', 'touch_coverage', 'true_cell_colours']
+           'one_touch_oracle', 'point_metrics', 'seen_cells', 'surface_truth', 'touch_coverage',
+           'true_cell_colours']
 
 # Cell indices are packed into one int64 per cell: 20 bits per axis, offset to be positive.
 _BITS = 20
@@ -374,6 +375,16 @@ def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
         'sample_spacing_mm': truth.sample_spacing * _MM,
     }
     return {key: scores[key] for key in MAP_SCORE_KEYS}
+
+
+def one_touch_oracle(truth: SurfaceTruth, lattice: Lattice, threshold: float = 0.8) -> dict:
+    """The map that marks exactly the cells holding a true contact, scored by
+    :func:`map_metrics` as a map is: what a session's contacts allow at best when one touch
+    is enough (precision about 1, so its F is about 2r / (1 + r), r its recall). A session
+    that touched too little of its surface is judged against it."""
+    cells = np.unique(cell_indices(truth.contacts, lattice), axis=0)
+    centres = np.asarray(lattice.origin) + (cells + 0.5) * lattice.resolution
+    return map_metrics(centres, np.ones(len(centres)), lattice, truth, threshold)
 
 
 def point_metrics(points, truth: SurfaceTruth, fscore_distance: float = 0.005) -> dict:

@@ -4,6 +4,7 @@
                      --static|--moving [--regrasp/--no-regrasp] [--second-object-sensor]
                      --rate 15|30|120|240 --duration SECONDS --seed N [--speed CM_PER_S]
                      [--lifts continuous|between-frames] [--noise-mm 1.0]
+                     [--hand NAME=VALUE ...]
                      --output bags/NAME [--force] [--quiet]
 
 ``--object``: a built-in object (cat, bottle, mug), a mesh this package ships (cup, animal,
@@ -30,7 +31,7 @@ from dataclasses import replace
 from inhand_common.cli_types import number
 from inhand_common.ground_truth import truth_path
 from inhand_sim.catalogue import object_choices
-from inhand_sim.exploration import ExplorationSettings, speed_range_around
+from inhand_sim.exploration import ExplorationSettings, parse_hand_setting, speed_range_around
 from inhand_sim.mesh_objects import MESH_SUFFIXES, UP_AXES
 from inhand_sim.session import SessionSettings, simulate, write_session
 
@@ -69,6 +70,13 @@ def _seed(text: str) -> int:
     if value < 0 or value >= 2 ** 63:
         raise argparse.ArgumentTypeError(f'seed {text} must be in [0, 2^63)')
     return value
+
+
+def _hand(text: str) -> tuple[str, object]:
+    try:
+        return parse_hand_setting(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _pairs(count: int) -> str:
@@ -114,6 +122,14 @@ def make_parser() -> argparse.ArgumentParser:
                         help='continuous (default): lifts, lift-offs and touch-downs pass through '
                         'every height above the surface; between-frames: they jump past 6 mm '
                         'between two frames (the sessions made before)')
+    parser.add_argument('--hand', action='append', default=[], type=_hand, metavar='NAME=VALUE',
+                        help='how the hand moves, beyond the default hand (repeatable): '
+                        'stroke_length_range=0.03,0.12 (m), speed_profile=wave|bell, '
+                        'liftoff_height_range=0.01,0.04 (m), liftoff_speed_range=0.1,0.3 (m/s), '
+                        'liftoff_angle_range=0,45 (degrees from the normal), '
+                        'hover_probability=0.2, hover_height_range=0.002,0.006 (m), '
+                        'tremor_amplitude=0.0005 (m), tremor_frequency=10 (Hz), '
+                        'held_scale=1.5, transit_speed=0.3 (m/s), speed_variation=0.3')
     parser.add_argument('--duration', type=number(above=0.0, at_most=24 * 3600, unit='seconds'),
                         required=True, metavar='SECONDS')
     parser.add_argument('--seed', type=_seed, required=True, metavar='N')
@@ -197,6 +213,8 @@ def main(argv=None) -> int:
     exploration = ExplorationSettings(continuous_lifts=args.lifts == 'continuous')
     if args.speed is not None:
         exploration = replace(exploration, speed_range=speed_range_around(args.speed / 100.0))
+    if args.hand:
+        exploration = replace(exploration, **dict(args.hand))
     settings = SessionSettings(
         object_name=args.object, mesh_scale=args.mesh_scale, mesh_up=args.mesh_up,
         exploration=exploration, static=args.static,
@@ -224,7 +242,8 @@ def main(argv=None) -> int:
     low, high = (100 * v for v in exploration.speed_range)
     print(f'simulate_session: {settings.object_name} ({kind}), {settings.duration:g} s at '
           f'{settings.rate:g} Hz, seed {settings.seed}, noise {settings.noise_mm:g} mm, '
-          f'strokes {low:.3g}-{high:.3g} cm/s, {args.lifts} lifts')
+          f'strokes {low:.3g}-{high:.3g} cm/s, {args.lifts} lifts'
+          + ''.join(f', {name}={value}' for name, value in args.hand))
     print(f'  wrote {bag}/ : {session.message_count:,} messages '
           f'({len(session.stamps_ns):,} frames x {len(session.stations)} stations: '
           f'{", ".join(session.stations)}'

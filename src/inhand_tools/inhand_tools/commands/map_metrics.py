@@ -61,6 +61,7 @@ from inhand_tools.map_quality import (
     frame_check,
     label_width,
     metrics_table,
+    one_touch_oracle,
     surface_truth,
     touch_coverage,
 )
@@ -176,6 +177,7 @@ def _evaluate(args: argparse.Namespace, inputs: _Inputs) -> dict:
                          if inputs.cells.kind == 'npz' else None)
     results['touch_coverage'] = touch_coverage(surface, inputs.truth.contact_times,
                                                inputs.cells.lattice)
+    results['oracle'] = one_touch_oracle(surface, inputs.cells.lattice)
     return results
 
 
@@ -196,6 +198,9 @@ def _print_summary(args: argparse.Namespace, inputs: _Inputs, results: dict) -> 
     print(f'touched: {coverage["once"]:.1%} of the explored surface at least once, '
           f'{coverage["twice"]:.1%} at least twice (true contacts in its cell more than '
           f'{coverage["gap_s"]:g} s apart)')
+    oracle = results['oracle']
+    print(f'one-touch oracle (exactly the cells holding a true contact): F@5mm '
+          f'{oracle["fscore_at_5mm"]:.3f}, recall {oracle["recall_at_5mm"]:.3f}')
     if points is not None:
         stats = points.stats
         print(f'bag:   {args.bag}: {len(points.registered)} of {len(points.raw)} fingertip '
@@ -239,7 +244,7 @@ def _write_json(args: argparse.Namespace, inputs: _Inputs, results: dict) -> Non
                 'colour': results['colour'], 'colour_note': results['colour_note'],
                 'seen_note': results['seen_note'], 'stereo': results['stereo'],
                 'stereo_note': results['stereo_note'], 'fusion': results['fusion'],
-                'touch_coverage': results['touch_coverage']}
+                'touch_coverage': results['touch_coverage'], 'oracle': results['oracle']}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(_jsonable(document), indent=2) + '\n')
 

@@ -1,0 +1,72 @@
+"""The held-out check: ``benchmark.sh validation`` scores sessions an independent generator wrote
+(``../shared/data/validation_sessions``) with the project's metrics beside their one-touch
+oracle, and the quality benchmark's hand sweep runs. The sessions are not part of the
+workspace: without them the validation test says so and skips."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from inhand_tools.map_cells import Lattice
+from inhand_tools.map_quality import SurfaceTruth, one_touch_oracle
+
+BENCH = 'test/benchmarks/bench_validation.py'
+QUALITY = 'test/benchmarks/bench_quality.py'
+ROW = re.compile(r'^(\S+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)\s+(\d+)%\s+([\d.]+)\s+([\d.]+)\s+'
+                 r'(met|NOT met)$', re.M)
+
+
+def test_the_one_touch_oracle_marks_the_cells_holding_contacts():
+    rng = np.random.default_rng(1)
+    angle = rng.uniform(0, 2 * np.pi, 20_000)
+    height = rng.uniform(-0.03, 0.03, 20_000)
+    surface = np.stack([0.04 * np.cos(angle), 0.04 * np.sin(angle), height], axis=1)
+    touched = surface[(angle < np.pi) & (np.abs(height) < 0.02)][::7]
+    truth = SurfaceTruth(surface, touched, explored_radius=0.01)
+    oracle = one_touch_oracle(truth, Lattice(0.005))
+    assert oracle['precision_at_5mm'] == pytest.approx(1.0)
+    recall = oracle['recall_at_5mm']
+    assert 0.5 < recall <= 1.0
+    assert oracle['fscore_at_5mm'] == pytest.approx(2 * recall / (1 + recall))
+
+
+def test_the_validation_benchmark_scores_a_held_out_session_beside_its_oracle(workspace):
+    folder = workspace.parent / 'shared' / 'data' / 'validation_sessions'
+    if not folder.is_dir():
+        pytest.skip(f'no validation sessions at {folder}: they come with the shared data '
+                    'beside the workspace, not with it')
+    name = min((p.name for p in folder.iterdir() if p.is_dir()), key=len)
+    result = subprocess.run([sys.executable, BENCH, '--sessions', name, '--jobs', '1'],
+                            cwd=workspace, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    rows = ROW.findall(result.stdout)
+    assert [row[0] for row in rows] == [name], result.stdout
+    f, p, r, strays, share, oracle, floor = (float(v) for v in rows[0][1:8])
+    assert 0.0 <= p <= 1.0 and 0.0 <= r <= 1.0
+    assert f == pytest.approx(2 * p * r / (p + r), abs=0.002)
+    assert 0.5 < oracle <= 1.0 and floor <= 0.9
+    assert 'summary: targets met on' in result.stdout
+
+
+def test_a_missing_validation_folder_is_said_in_one_line(workspace, tmp_path):
+    result = subprocess.run([sys.executable, BENCH, '--folder', str(tmp_path / 'none')],
+                            cwd=workspace, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert 'no validation sessions at' in result.stderr and len(result.stderr.splitlines()) == 1
+
+
+def test_the_hand_sweep_prints_the_worst_session_per_property_value(workspace, tmp_path):
+    result = subprocess.run(
+        [sys.executable, QUALITY, '--sweep', '--objects', 'cat', '--speeds', '10', '--rates',
+         '30', '--modes', 'static', '--duration', '4', '--keep', str(tmp_path)],
+        cwd=workspace, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    table = result.stdout.split('sensitivity:')[1]
+    for value in ('liftoff_speed_range=0.033,0.1', 'liftoff_speed_range=0.3,0.9',
+                  'speed_profile=bell', 'tremor_amplitude=0.0018', 'hover_height_range=0.006,0.012'):
+        assert re.search(rf'^{re.escape(value)}\s+[\d.]+\s+[\d.]+\s+\d+/1', table, re.M), table
