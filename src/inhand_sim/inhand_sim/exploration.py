@@ -121,7 +121,7 @@ class ExplorationSettings:
     continuous_lifts: bool = True
     liftoff_duration_range: tuple = (0.08, 0.16)  # from the surface to the hover height, s
     min_height: float = 0.00005                  # off-surface samples at least this far off
-    # --- how the hand moves: other hands than the default one (HAND_PROPERTIES). Each
+    # --- how the hand moves: other hands than the default one (HAND_DEFAULTS). Each
     # default keeps the sessions made before these existed, bit for bit.
     stroke_length_range: tuple | None = None     # m: each stroke's planned length (None: by
                                                  # stroke_duration_range at its speed)
@@ -861,13 +861,13 @@ class _Explorer:
             if t >= limit - 0.4:
                 self._away(finger, window)
                 return
-        if self.st.stroke_length_range is None:
-            planned = self.rng.uniform(*self.st.stroke_duration_range)
-            speed = self.rng.uniform(*self.st.speed_range)
-        else:
-            length = self.rng.uniform(*self.st.stroke_length_range)
-            speed = self.rng.uniform(*self.st.speed_range)
-            planned = length / speed
+        # A planned duration, or a planned length to slide at the stroke's speed.
+        by_length = self.st.stroke_length_range is not None
+        planned = self.rng.uniform(*(self.st.stroke_length_range if by_length
+                                     else self.st.stroke_duration_range))
+        speed = self.rng.uniform(*self.st.speed_range)
+        if by_length:
+            planned /= speed
         if finger.pending is not None:
             (gi, index), finger.pending = finger.pending, None
         else:
@@ -1038,8 +1038,7 @@ class _Explorer:
             return
         height = float(self.rng.uniform(*self.st.hover_height_range))
         back = max(2, int(round(i_end * self.rng.uniform(0.3, 1.0))))
-        above = (path + normals * height)[i_end:i_end - back - 1:-1] if i_end - back - 1 >= 0 \
-            else (path + normals * height)[i_end::-1]
+        above = (path + normals * height)[i_end::-1][:back + 1]
         t = finger.t
         rise = min(height / 0.05, max(limit - t, 0.0))
         finger.segments.append(_Segment(t, t + rise, 'hover',
@@ -1048,11 +1047,11 @@ class _Explorer:
         t += rise
         length = float(np.sum(np.linalg.norm(np.diff(above, axis=0), axis=1)))
         t1 = min(t + length / speed, max(limit, t))
+        glide = _slide_along(above, t, t + length / speed)
         if t1 > t:
-            finger.segments.append(_Segment(t, t1, 'hover', _slide_along(above, t, t + length / speed),
-                                            False, near=True))
+            finger.segments.append(_Segment(t, t1, 'hover', glide, False, near=True))
         self.events.append((finger.name, 'hover', finger.t, t1))
-        where = _slide_along(above, t, t + length / speed)(np.array([t1]))[0]
+        where = glide(np.array([t1]))[0]
         finger.t, finger.pos, finger.normal = t1, where, normals[i_end]
         finger.contact = None
 

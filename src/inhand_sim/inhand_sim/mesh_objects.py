@@ -211,30 +211,29 @@ def mesh_object(mesh, label: str, source: str, *, scale: float = 1.0, up: str = 
     if not (scale > 0 and np.isfinite(scale)):
         raise MeshError(f'mesh scale {scale} must be a positive number')
     turn = _turn_up(up)
-    path = source
     if not mesh.is_watertight:
         open_edges = int(np.count_nonzero(np.bincount(mesh.edges_unique_inverse) != 2))
-        raise MeshError(f'{path} is not watertight ({open_edges} edges not shared by exactly two '
+        raise MeshError(f'{source} is not watertight ({open_edges} edges not shared by exactly two '
                         'triangles): an object needs an inside')
     if not mesh.is_winding_consistent:
-        raise MeshError(f'{path}: its triangles are not consistently oriented (no inside)')
+        raise MeshError(f'{source}: its triangles are not consistently oriented (no inside)')
     if mesh.volume < 0:
         mesh.invert()
     vertices = (np.asarray(mesh.vertices, dtype=float) * float(scale)) @ turn.T
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     extent = float((hi - lo).max())
     if not SIZE_RANGE[0] <= extent <= SIZE_RANGE[1]:
-        raise MeshError(f'{path} is {extent * 100:.3g} cm across (scale {scale:g}): objects must be '
+        raise MeshError(f'{source} is {extent * 100:.3g} cm across (scale {scale:g}): objects must be '
                         f'{SIZE_RANGE[0] * 100:g}-{SIZE_RANGE[1] * 100:g} cm across to fit the '
                         'workspace (set the scale: file units to metres)')
     vertices = vertices - (lo + hi) / 2
     obj = MeshObject(label, vertices, np.asarray(mesh.faces, dtype=np.int64), texture=texture,
                      description=description, static_grip=static_grip, moving_grips=moving_grips)
-    _check_resolved(obj, path)
+    _check_resolved(obj, source)
     return obj
 
 
-def _check_resolved(obj: MeshObject, path: str, tolerance: float = 0.0005,
+def _check_resolved(obj: MeshObject, source: str, tolerance: float = 0.0005,
                     allowed: float = 0.01) -> None:
     """Refuse a mesh whose distance grid misses its surface (parts thinner than about two
     grid steps): more than ``allowed`` of its surface farther than ``tolerance`` from the
@@ -242,5 +241,5 @@ def _check_resolved(obj: MeshObject, path: str, tolerance: float = 0.0005,
     samples, _ = obj.sample_surface(20_000, np.random.default_rng(1))
     missed = float(np.mean(np.abs(obj.sdf(samples)) > tolerance))
     if missed > allowed:
-        raise MeshError(f'{path}: {missed:.0%} of its surface is in parts thinner than the '
+        raise MeshError(f'{source}: {missed:.0%} of its surface is in parts thinner than the '
                         f'{GRID_SPACING * 1000:g} mm distance grid resolves')
