@@ -70,3 +70,26 @@ def test_the_hand_sweep_prints_the_worst_session_per_property_value(workspace, t
     for value in ('liftoff_speed_range=0.033,0.1', 'liftoff_speed_range=0.3,0.9',
                   'speed_profile=bell', 'tremor_amplitude=0.0018', 'hover_height_range=0.006,0.012'):
         assert re.search(rf'^{re.escape(value)}\s+[\d.]+\s+[\d.]+\s+\d+/1', table, re.M), table
+
+
+def test_a_set_of_our_own_hands_is_written_in_the_validation_format_and_scored(workspace,
+                                                                               tmp_path):
+    # The first session of set S (a small duck, static, hand b: bell strokes, hovers, tremor).
+    written = subprocess.run([sys.executable, 'test/benchmarks/hand_sessions.py', '--set', 'S',
+                              '--first', '1', '--output', str(tmp_path), '--jobs', '1'],
+                             cwd=workspace, capture_output=True, text=True, timeout=300)
+    assert written.returncode == 0, written.stdout + written.stderr
+    (truth_file,) = tmp_path.glob('*_truth.npz')
+    name = truth_file.name[:-len('_truth.npz')]
+    assert name.startswith('duck45pc_') and (tmp_path / name).is_dir()
+    with np.load(truth_file) as truth:
+        assert {'surface', 'contacts', 'contact_t', 'mode', 'rate', 'seconds',
+                'speed_cms'} <= set(truth.files)
+        assert len(truth['contacts']) > 1000 and str(truth['mode']) in ('static', 'tracked')
+    scored = subprocess.run([sys.executable, BENCH, '--folder', str(tmp_path), '--jobs', '1'],
+                            cwd=workspace, capture_output=True, text=True, timeout=300)
+    assert scored.returncode == 0, scored.stdout + scored.stderr
+    rows = ROW.findall(scored.stdout)
+    assert [row[0] for row in rows] == [name], scored.stdout
+    precision, oracle = float(rows[0][2]), float(rows[0][6])
+    assert 0.5 < precision <= 1.0 and 0.5 < oracle <= 1.0

@@ -216,7 +216,8 @@ def bench_integration(points: np.ndarray, runs: int) -> bool:
 
 def bench_path_model(runs: int) -> None:
     """The default touch model on a fingertip stream: three fingers at 240 Hz for 120 s,
-    sliding at 2-15 cm/s with 1 mm of noise (random strokes over a sphere-sized region)."""
+    sliding at 2-15 cm/s with 1 mm of noise (random strokes over a sphere-sized region),
+    and the map read once at the end (the surface layer, surface_layer.py)."""
     from inhand_mapping.occupancy import OccupancyGrid
 
     rng = np.random.default_rng(4)
@@ -241,6 +242,7 @@ def bench_path_model(runs: int) -> None:
         start = time.perf_counter()
         grid.integrate(*stream)
         grid.flush()
+        grid.probabilities()    # the map read once: the surface layer is applied here
         best = min(best, time.perf_counter() - start)
     count = len(stream[1])
     say(f'  path touch model (default), 3 fingers x 240 Hz x 120 s = {count:,} samples: '

@@ -53,6 +53,8 @@ from pathlib import Path
 
 import numpy as np
 
+from inhand_mapping.surface_layer import LAYER_RADIUS
+
 WORKSPACE = Path(__file__).resolve().parents[2]
 STATIONS = ('thumb', 'index', 'middle', 'object')
 POSE_TOPICS = tuple(f'polhemus/{name}/pose' for name in STATIONS)
@@ -172,9 +174,10 @@ def main() -> int:
     parser.add_argument('--max-growth', type=float, default=20.0, metavar='MB',
                         help='most a process may grow from a minute after its start to the '
                         'end (default 20 MB)')
-    parser.add_argument('--reach', type=int, default=3, metavar='CELLS',
+    parser.add_argument('--reach', type=int, default=3 + LAYER_RADIUS, metavar='CELLS',
                         help='cells around the points the kill lost where the maps may differ '
-                        '(default 3)')
+                        f'(default {3 + LAYER_RADIUS}: 3, and the surface layer spreads a '
+                        f'change of evidence {LAYER_RADIUS} cells further)')
     parser.add_argument('--margin', type=float, default=2.0, metavar='S',
                         help='seconds of stream either side of what the kill lost whose '
                         'points may differ too: tracks restart there (default 2)')

@@ -91,6 +91,7 @@ class MapClouds:
 
     def __call__(self, threshold: float) -> tuple[np.ndarray, np.ndarray]:
         grid = self.grid
+        grid.apply_layer()          # the kernel reads the cell arrays directly
         time_origin = grid.earliest_touch if math.isfinite(grid.earliest_touch) else 0.0
         touched, occupied = kernels.gather_cells(
             grid.cell_arrays, grid.geometry, grid.prior_log_odds, float(threshold), time_origin,

@@ -3,7 +3,9 @@
 * NPZ holds log-odds, hit counts and first-touch times of every cell, with the grid
   geometry, the frame, the sensor-model parameters and the integration counters, so
   ``load_npz`` gives back the same map, ready to keep integrating (the fingers' current
-  visits are not saved: after loading, every finger starts a new visit).
+  visits are not saved: after loading, every finger starts a new visit). A path-model map
+  also keeps ``touch_evidence``, its evidence before the surface layer (surface_layer.py),
+  so that touches after loading go on from it exactly (an optional addition of format 2).
   Version 1 files (before dwell and visits) load with the model they were built with.
 * PLY (binary little-endian) holds one vertex per cell with ``x y z`` (cell centre, float),
   ``intensity`` (occupancy probability) and the ``hits`` and ``first_touch`` scalar fields:
@@ -76,6 +78,9 @@ _UNREADABLE = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib
 VERSION_1_MODEL = {'distance_to': 'centre', 'evidence_rate': 0.0, 'visit_gap': 0.0}
 # Maps saved before the path model had samples as their only touch model.
 BEFORE_PATH_MODEL = {'touch_model': 'samples'}
+# Maps saved before the surface layer (surface_layer.py) were read without it, and their
+# transits fell off with the square of the speed.
+BEFORE_SURFACE_LAYER = {'layer_factor': 1.0, 'transit_falloff': 2.0, 'sheet_gain': 1.0}
 Colours: TypeAlias = NDArray[np.uint8]     # (M, 3) RGB per cell
 LOCAL_MAPS = ('touch', 'vision')            # the local maps an NPZ may keep beside the global
 
@@ -173,6 +178,11 @@ def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
         arrays.update(rgb=colours.rgb, textured=colours.textured)
     for name, local in (local_maps or {}).items():
         arrays[f'local_{name}'] = local
+    # The path model's evidence before the surface layer, so that a map resumed from this
+    # file goes on exactly (the layered log-odds would be layered again); a fused grid's
+    # evidence is not the touch map's, and its file keeps the touch map's log-odds only.
+    if grid.touch_evidence is not None and 'touch' not in (local_maps or {}):
+        arrays['touch_evidence'] = grid.touch_evidence
     with write(target) as stream:
         np.savez_compressed(stream, **arrays)  # type: ignore[arg-type]
     return target
@@ -187,6 +197,8 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
         with data:
             metadata: dict[str, Any] = json.loads(bytes(data['metadata']).decode())
             arrays = {k: data[k] for k in ('log_odds', 'hits', 'first_touch')}
+            if 'touch_evidence' in data.files:
+                arrays['touch_evidence'] = data['touch_evidence']
     except _UNREADABLE as error:
         raise ValueError(f'{path}: not a map saved by this software '
                          f'({type(error).__name__}: {error})') from None
@@ -225,18 +237,20 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
         raise ValueError(f'centre {centre} is not 3 coordinates')
     spec = GridSpec(float(metadata['size']), float(metadata['resolution']),
                     (centre[0], centre[1], centre[2]))
-    kinds = {'log_odds': 'f', 'hits': 'ui', 'first_touch': 'f'}
+    kinds = {'log_odds': 'f', 'hits': 'ui', 'first_touch': 'f', 'touch_evidence': 'f'}
     for name, array in arrays.items():
         if array.shape != spec.shape or array.dtype.kind not in kinds[name]:
             raise ValueError(f'{name} is {array.dtype} {array.shape}, the metadata says a '
                              f'{spec.shape} grid')
     if np.isnan(arrays['log_odds']).any():
         raise ValueError('log_odds holds NaN')
+    if 'touch_evidence' in arrays and not np.isfinite(arrays['touch_evidence']).all():
+        raise ValueError('touch_evidence holds NaN or infinity')
     if arrays['hits'].size and (arrays['hits'].min() < 0 or
                                 arrays['hits'].max() > np.iinfo(np.uint32).max):
         raise ValueError('hits outside 0..2^32-1')
     # The path model's parameters, absent from earlier maps, take their defaults.
-    known = {**BEFORE_PATH_MODEL, **metadata}
+    known = {**BEFORE_PATH_MODEL, **BEFORE_SURFACE_LAYER, **metadata}
     model = SensorModel(**{field.name: _typed(field.name, known[field.name], field.default)
                            for field in fields(SensorModel) if field.name in known})
     counts = IntegrationCounts(**metadata['counts'])
@@ -247,6 +261,8 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
     grid.hits[...] = arrays['hits']
     grid.first_touch[...] = arrays['first_touch']
     grid.refresh()
+    if 'touch_evidence' in arrays:
+        grid.restore_touch_evidence(arrays['touch_evidence'])
     grid.counts = counts
     return grid
 

@@ -94,7 +94,9 @@ def resume_from(grid: OccupancyGrid, path: Path) -> str:
                          f'{grid.spec.cells_per_axis}^3 cells of {grid.spec.resolution * 1000:g}'
                          f' mm centred at {list(grid.spec.centre)} (workspace_size, resolution, '
                          'workspace_centre must match)')
-    touch = load_local_maps(path).get('touch', saved.log_odds)
-    grid.show(touch, saved)
+    local = load_local_maps(path)
+    grid.show(local.get('touch', saved.log_odds), saved)
+    if 'touch' not in local and saved.touch_evidence is not None:
+        grid.restore_touch_evidence(saved.touch_evidence)
     return (f'{int(saved.hits.sum())} hits in {int(np.count_nonzero(saved.hits))} cells from '
             f'{path}')

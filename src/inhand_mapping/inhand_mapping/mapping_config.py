@@ -82,14 +82,25 @@ OCCUPANCY_PARAMETERS = (
               'was last there continues its visit (samples model: a visit is worth at most '
               'one measurement; 0: every sample)', minimum=0.0, maximum=600.0),
     ParamSpec('transit_speed', 0.2, "path model: m/s; a fingertip faster than this is taken "
-              'to move through the air, its evidence scaled by (transit_speed / speed)^2',
-              minimum=0.01, maximum=10.0),
+              'to move through the air, its evidence scaled by (transit_speed / speed)^'
+              'transit_falloff', minimum=0.01, maximum=10.0),
+    ParamSpec('transit_falloff', 6.0, 'path model: the power of transit_speed / speed that '
+              'scales the evidence of a fingertip faster than transit_speed (6: a carry at 1.5 '
+              'times transit_speed keeps a tenth of a touch)', minimum=1.0, maximum=50.0),
     ParamSpec('speed_context', 0.25, 'path model: s; a moment is judged by the fastest speed '
               'within +- this, so the slow ends of a transit count as the transit',
               minimum=0.0, maximum=5.0),
     ParamSpec('pass_time', 0.15, 'path model: s; a slide that takes this long to cross a cell '
               '(3.3 cm/s at 5 mm cells) or longer is worth a second measurement',
               minimum=0.001, maximum=10.0),
+    ParamSpec('layer_factor', 0.4, 'path model: the share of its evidence a cell keeps when '
+              'a cell one step along the local surface normal has more (the layer above the '
+              'surface: lift-offs, set-downs, hovers; surface_layer.py); 1: off',
+              minimum=0.0, maximum=1.0),
+    ParamSpec('sheet_gain', 1.75, 'path model: how many times a cell of a flat sheet of '
+              'evidence, with no stronger cell along its normal and at least 1.2 touches, counts '
+              'its evidence (one pass over a surface the map confirms is enough; '
+              'surface_layer.py); 1: off', minimum=1.0, maximum=4.0),
     ParamSpec('occupied_threshold', 0.8, 'Cells above this probability are occupied '
               '(occupancy/occupied, centre of mass, PLY)', minimum=0.5, maximum=0.999),
     ParamSpec('publish_rate', 2.0, 'Map publications per second (only when it changed)',
@@ -235,7 +246,9 @@ class OccupancyConfig:
                             values['neighbourhood'], values['distance_to'],
                             values['evidence_rate'], values['visit_gap'],
                             values['touch_model'], values['transit_speed'],
-                            values['speed_context'], values['pass_time'])
+                            values['speed_context'], values['pass_time'],
+                            values['layer_factor'], values['transit_falloff'],
+                            values['sheet_gain'])
         return cls(grid=grid, model=model,
                    occupied_threshold=float(values['occupied_threshold']),
                    publish_rate=float(values['publish_rate']),

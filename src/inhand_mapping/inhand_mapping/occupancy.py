@@ -156,6 +156,9 @@ class SensorModel:
     transit_speed: float = 0.2  # m/s, path model: faster is through the air, not sliding
     speed_context: float = 0.25  # s, path model: the fastest speed within +- this counts
     pass_time: float = 0.15  # s, path model: a slow pass through a cell this long is 2 touches
+    layer_factor: float = 0.4  # path model: evidence kept by the layer above the surface (1: off)
+    transit_falloff: float = 6.0  # path model: evidence faster than that: (transit_speed / v)^this
+    sheet_gain: float = 1.75  # path model: evidence of a cell of a flat sheet counts this often
 
     def __post_init__(self) -> None:
         if self.neighbourhood not in (1, 27):
@@ -171,6 +174,12 @@ class SensorModel:
                              'updates the cells the path crosses')
         if not (self.transit_speed > 0 and self.speed_context >= 0 and self.pass_time > 0):
             raise ValueError('need transit_speed > 0, speed_context >= 0 and pass_time > 0')
+        if not 1.0 <= self.sheet_gain <= 4.0:
+            raise ValueError(f'sheet_gain must be in [1, 4], not {self.sheet_gain}')
+        if not self.transit_falloff >= 1.0:
+            raise ValueError(f'transit_falloff must be at least 1, not {self.transit_falloff}')
+        if not 0.0 <= self.layer_factor <= 1.0:
+            raise ValueError(f'layer_factor must be in [0, 1], not {self.layer_factor}')
         if not 0.0 < self.clamp_min < self.prior < self.clamp_max < 1.0:
             raise ValueError('need 0 < clamp_min < prior < clamp_max < 1')
         # sigma squared, not sigma: eq. 3 divides by it (2e-285 m passed "> 0" and its
@@ -205,7 +214,9 @@ class OccupancyGrid:
         self.spec = spec
         self.model = model
         self.prior_log_odds = float(logit(model.prior))
-        self.log_odds: CellFloats = np.full(spec.shape, self.prior_log_odds, dtype=np.float64)
+        # The map read (``log_odds``) is the touch evidence with the surface layer applied
+        # (surface_layer.py); the path model marks what changed, ``log_odds`` applies it.
+        self._log_odds: CellFloats = np.full(spec.shape, self.prior_log_odds, dtype=np.float64)
         self.hits: CellHits = np.zeros(spec.shape, dtype=np.uint32)
         self.first_touch: CellFloats = np.full(spec.shape, np.nan, dtype=np.float64)
         self._probability: CellFloats = np.full(spec.shape, float(model.prior), dtype=np.float64)
@@ -228,7 +239,7 @@ class OccupancyGrid:
             visit_gap=float(model.visit_gap),
             l_min=float(logit(model.clamp_min)), l_max=float(logit(model.clamp_max)))
         self.cell_arrays = kernels.CellArrays(
-            log_odds=self.log_odds.reshape(-1), probability=self._probability.reshape(-1),
+            log_odds=self._log_odds.reshape(-1), probability=self._probability.reshape(-1),
             hits=self.hits.reshape(-1), first_touch=self.first_touch.reshape(-1),
             changed_mark=np.zeros(size, dtype=np.bool_))
         # Per finger (rows) and cell: see kernels.Visits. Rows are added as fingers appear.
@@ -238,8 +249,43 @@ class OccupancyGrid:
         self._paths = TouchPaths(
             self.geometry, self.cell_arrays, p_z_given_not_occupied=model.p_z_given_not_occupied,
             prior=model.prior, clamp_min=model.clamp_min, clamp_max=model.clamp_max,
-            transit_speed=model.transit_speed, speed_context=model.speed_context,
-            pass_time=model.pass_time, visit_gap=model.visit_gap) if path_model else None
+            transit_speed=model.transit_speed, transit_falloff=model.transit_falloff,
+            speed_context=model.speed_context,
+            pass_time=model.pass_time, visit_gap=model.visit_gap,
+            layer_factor=model.layer_factor, sheet_gain=model.sheet_gain) if path_model else None
+
+    @property
+    def log_odds(self) -> CellFloats:
+        """Log-odds of every cell (n, n, n), up to date: the path model's surface layer is
+        applied here, to the cells around what changed since the last read, so a node pays
+        for it at the rate it reads the map. Writing into it sets the map (loading,
+        fusion's view), taken as it is."""
+        self.apply_layer()
+        return self._log_odds
+
+    @property
+    def touch_evidence(self) -> CellFloats | None:
+        """The path model's evidence per cell (n, n, n), in touches, before the surface
+        layer (read-only); None for the samples model."""
+        if self._paths is None:
+            return None
+        view = self._paths.evidence.reshape(self.spec.shape).view()
+        view.flags.writeable = False
+        return view
+
+    def restore_touch_evidence(self, evidence: ArrayLike) -> None:
+        """Take the path model's evidence of a saved map (``touch_evidence``), whose
+        log-odds this grid holds already: touches go on from it exactly (without it they go
+        on from the evidence the log-odds give). Nothing for the samples model."""
+        if self._paths is not None:
+            self._paths.restore(np.asarray(evidence, dtype=float))
+
+    def apply_layer(self) -> None:
+        """Bring the cells around what changed since the last read up to date with the path
+        model's surface layer (surface_layer.py). ``log_odds`` and ``probabilities()`` do
+        this; code that reads ``cell_arrays`` directly calls it first."""
+        if self._paths is not None:
+            self._paths.apply_layer()
 
     # ------------------------------------------------------------------ update
     def integrate(self, points: ArrayLike, times: ArrayLike | None = None,
@@ -385,7 +431,7 @@ class OccupancyGrid:
         return self._visits
 
     def reset(self) -> None:
-        self.log_odds.fill(self.prior_log_odds)
+        self._log_odds.fill(self.prior_log_odds)
         self._probability.fill(self.model.prior)
         self.earliest_touch = math.inf
         self.hits.fill(0)
@@ -401,6 +447,7 @@ class OccupancyGrid:
     # ------------------------------------------------------------------ queries
     def probabilities(self) -> CellFloats:
         """Occupancy probability of every cell (read-only; kept current by each update)."""
+        self.apply_layer()
         view = self._probability.view()
         view.flags.writeable = False
         return view
@@ -459,3 +506,4 @@ def warm_up(model: SensorModel, resolution: float) -> None:
     grid.held_points()
     grid.integrate(stroke[:2])                      # untimed points take their own kernel
     grid.flush()
+    grid.probabilities()                            # the surface layer's kernel

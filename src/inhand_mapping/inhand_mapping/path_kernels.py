@@ -38,6 +38,7 @@ class PathModel(NamedTuple):
     """The path model's parameters, in the kernel's units (see touch_paths.py)."""
 
     transit_speed: float   # m/s: above it the finger is taken to be in the air
+    transit_falloff: float  # faster than that, evidence scales as (transit_speed / speed)^this
     speed_context: float   # s: the fastest speed within +- this judges a moment
     speed_window: float    # s: half-width of the local linear fit giving the velocity
     track_gap: float       # s: a longer gap between two samples of a finger ends its track
@@ -91,10 +92,15 @@ class PathVisits(NamedTuple):
 
 
 class PathCounts(NamedTuple):
-    """Scalars the kernels keep between calls, as one-element arrays."""
+    """What the kernels keep between calls besides tracks and visits: scalars as
+    one-element arrays, and the cells whose evidence changed since the surface layer
+    (surface_layer.py) was last applied."""
 
     clock: Floats      # (1,) newest time of any finger
     overwritten: Indices  # (1,) visits within the gap dropped because a ring was full
+    dirty_mark: np.ndarray  # (n^3,) bool: the cell is in ``dirty``
+    dirty: Indices     # (n^3,) flat indices of the cells whose evidence changed
+    n_dirty: Indices   # (1,) how many of ``dirty`` are in use
 
 
 @_inlined
@@ -186,7 +192,8 @@ def end_tracks(geometry: GridGeometry, model: PathModel, cells: CellArrays,
 
 @_compiled
 def add_points(points: Points, geometry: GridGeometry, model: PathModel, cells: CellArrays,
-               evidence: CellFloats, changed: Indices) -> tuple[int, int, int]:
+               evidence: CellFloats, counts: PathCounts, changed: Indices
+               ) -> tuple[int, int, int]:
     """Untimed points: each is one touch of its cell (no path, no visits). Returns
     (integrated, outside, invalid)."""
     inv_res, n, origin = geometry.inv_res, geometry.n, geometry.origin
@@ -209,6 +216,7 @@ def add_points(points: Points, geometry: GridGeometry, model: PathModel, cells: 
         cells.hits[c] += 1
         integrated += 1
         n_changed = _add_evidence(c, 1.0, model, cells, evidence, changed, n_changed, n)
+        _mark_dirty(c, counts)
     _refresh_probability(cells, n, 0, changed, n_changed)
     return integrated, outside, invalid
 
@@ -382,11 +390,22 @@ def _walk(f: int, a: int, b: int, geometry: GridGeometry, model: PathModel, cell
             cells.first_touch[c] = time
         earliest = min(earliest, time)
         context = ca + frac * (cb - ca)
-        slide = 1.0 if context <= model.transit_speed else (model.transit_speed / context) ** 2
+        slide = (1.0 if context <= model.transit_speed
+                 else (model.transit_speed / context) ** model.transit_falloff)
         delta = _visit_step(f, c, smooth, length, time, duration, slide,
                             va + frac * (vb - va), geometry, model, visits, counts)
         n_changed = _add_evidence(c, delta, model, cells, evidence, changed, n_changed, n)
+        _mark_dirty(c, counts)
     return earliest, n_changed
+
+
+@_inlined
+def _mark_dirty(c: int, counts: PathCounts) -> None:
+    """Cell ``c``'s evidence changed: the surface layer around it is out of date."""
+    if not counts.dirty_mark[c]:
+        counts.dirty_mark[c] = True
+        counts.dirty[counts.n_dirty[0]] = c
+        counts.n_dirty[0] += 1
 
 
 @_inlined

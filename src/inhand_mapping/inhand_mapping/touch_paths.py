@@ -16,7 +16,7 @@ speed. This model counts what the finger did instead.
    moment's *context speed* ``v`` is the fastest of these within +-``speed_context``, so
    the slow ends of a transit count as the transit. The slide factor is
 
-       g = min(1, (transit_speed / v)^2).
+       g = min(1, (transit_speed / v)^transit_falloff).
 
 3. **Visits.** The steps of one finger in one cell form a visit; the finger back in the
    cell less than ``visit_gap`` after it was last there continues the visit. A visit has
@@ -36,6 +36,13 @@ speed. This model counts what the finger did instead.
    the sum (the touch map only ever gains evidence, so clamping once is clamping after
    every update). One touch: p = 0.69, under the 0.7 of the paper's noise threshold; a
    slow pass, or two independent touches: 0.83, over 0.8.
+
+5. **The surface layer** (surface_layer.py): the map read keeps ``layer_factor`` of the
+   evidence of a cell that has less than the cell one step along the local surface normal
+   (the layer above the surface, where lift-offs, set-downs and hovers pass), and counts
+   ``sheet_gain`` times the evidence of a cell of a flat sheet. The kernels
+   mark the cells whose evidence changed (``PathCounts.dirty``); :meth:`TouchPaths.apply_layer`
+   brings their neighbourhoods up to date when the grid is read.
 
 The paper's concern holds: repeated involuntary movements at one place, off the surface,
 are one visit of small through-ness, whatever their number, so they stay under 0.8.
@@ -58,6 +65,7 @@ from numpy.typing import ArrayLike
 
 from inhand_common.array_types import CellFloats, FingerIds, Points, Times
 from inhand_mapping import path_kernels as kernels
+from inhand_mapping import surface_layer
 from inhand_mapping.occupancy_kernels import CellArrays, GridGeometry
 
 __all__ = ['RETURN_SHARE', 'SPEED_WINDOW', 'STEPS_PER_CELL', 'TRACK_GAP', 'TouchPaths']
@@ -81,14 +89,18 @@ class TouchPaths:
 
     def __init__(self, geometry: GridGeometry, cells: CellArrays, *, p_z_given_not_occupied: float,
                  prior: float, clamp_min: float, clamp_max: float, transit_speed: float,
-                 speed_context: float, pass_time: float, visit_gap: float):
+                 transit_falloff: float, speed_context: float, pass_time: float,
+                 visit_gap: float, layer_factor: float, sheet_gain: float):
         self.geometry = geometry
+        self.layer_factor = layer_factor
+        self.sheet_gain = sheet_gain
         self.cells = cells
         step = geometry.resolution / STEPS_PER_CELL
         # A segment longer than the grid's diagonal, twice, is a glitch: walked coarsely.
         max_steps = int(math.ceil(2.0 * math.sqrt(3.0) * geometry.n * geometry.resolution / step))
         self.model = kernels.PathModel(
-            transit_speed=transit_speed, speed_context=speed_context, speed_window=SPEED_WINDOW,
+            transit_speed=transit_speed, transit_falloff=transit_falloff,
+            speed_context=speed_context, speed_window=SPEED_WINDOW,
             track_gap=TRACK_GAP, pass_time=pass_time, pass_gap=PASS_GAP,
             return_share=RETURN_SHARE,
             visit_gap=visit_gap, stay_radius=STAY_CELLS * geometry.resolution, step=step, max_steps=max_steps,
@@ -98,8 +110,12 @@ class TouchPaths:
             l_max=math.log(clamp_max / (1.0 - clamp_max)))
         self.evidence: CellFloats = np.zeros(geometry.n ** 3)
         self._changed = np.empty(min(kernels.CHANGED_BUFFER, geometry.n ** 3), dtype=np.int64)
-        self.counts = kernels.PathCounts(clock=np.full(1, -np.inf),
-                                         overwritten=np.zeros(1, dtype=np.int64))
+        size = geometry.n ** 3
+        self.counts = kernels.PathCounts(
+            clock=np.full(1, -np.inf), overwritten=np.zeros(1, dtype=np.int64),
+            dirty_mark=np.zeros(size, dtype=np.bool_), dirty=np.empty(size, dtype=np.int64),
+            n_dirty=np.zeros(1, dtype=np.int64))
+        self._region = np.empty(size, dtype=np.int64)   # scratch of apply_layer
         self.tracks = self._new_tracks(0)
         self.visits = self._new_visits(0)
 
@@ -117,7 +133,8 @@ class TouchPaths:
     def add_points(self, points: Points) -> tuple[int, int, int]:
         """Untimed points, each one touch of its cell."""
         result: tuple[int, int, int] = kernels.add_points(
-            points, self.geometry, self.model, self.cells, self.evidence, self._changed)
+            points, self.geometry, self.model, self.cells, self.evidence, self.counts,
+            self._changed)
         return result
 
     def flush(self) -> float:
@@ -125,6 +142,22 @@ class TouchPaths:
         earliest time touched."""
         return float(kernels.end_tracks(self.geometry, self.model, self.cells, self.evidence,
                                         self.tracks, self.visits, self.counts, self._changed))
+
+    def apply_layer(self) -> int:
+        """Bring the cells around every cell whose evidence changed since the last call up
+        to date with the surface layer (surface_layer.py): their log-odds and probability.
+        Returns how many cells were recomputed."""
+        counts = self.counts
+        n_dirty = int(counts.n_dirty[0])
+        if n_dirty == 0:
+            return 0
+        model = self.model
+        done = int(surface_layer.apply_layer(
+            self.evidence, self.geometry.n, self.layer_factor, self.sheet_gain, model.prior,
+            model.log_odds_per_touch, model.l_min, model.l_max, counts.dirty, n_dirty,
+            counts.dirty_mark, self._region, self.cells.log_odds, self.cells.probability))
+        counts.n_dirty[0] = 0
+        return done
 
     @property
     def pending(self) -> int:
@@ -151,6 +184,7 @@ class TouchPaths:
         self.evidence.fill(0.0)
         self.counts.clock.fill(-np.inf)
         self.counts.overwritten.fill(0)
+        self._clear_dirty()
         fingers = len(self.tracks.held)
         self.tracks = self._new_tracks(fingers)
         self.visits = self._new_visits(fingers)
@@ -160,6 +194,17 @@ class TouchPaths:
         from there. Clamped cells keep only the evidence of their clamp."""
         self.evidence[...] = ((np.asarray(log_odds, dtype=float).reshape(-1) - self.model.prior)
                               / self.model.log_odds_per_touch)
+        self._clear_dirty()     # the log-odds given are the map shown
+
+    def restore(self, evidence: ArrayLike) -> None:
+        """Evidence saved with a map whose log-odds the grid holds (map_io): touches go on
+        from it as they would have."""
+        self.evidence[...] = np.asarray(evidence, dtype=float).reshape(-1)
+        self._clear_dirty()
+
+    def _clear_dirty(self) -> None:
+        self.counts.dirty_mark.fill(False)
+        self.counts.n_dirty[0] = 0
 
     # ------------------------------------------------------------------ state
     def take_state(self, other: TouchPaths) -> None:
