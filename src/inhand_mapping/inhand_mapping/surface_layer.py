@@ -50,6 +50,7 @@ import numpy as np
 
 from inhand_common.array_types import CellFloats, Indices
 from inhand_mapping.occupancy_kernels import _compiled, _inlined
+from inhand_mapping.path_kernels import PathModel, _clamp
 
 __all__ = ['LAYER_RADIUS', 'SHEET_BREADTH', 'SHEET_FLATNESS', 'SHEET_MIN_TOUCHES', 'WEIGHT_CAP',
            'apply_layer', 'layered_evidence']
@@ -135,14 +136,14 @@ def layered_evidence(evidence: CellFloats, n: int, c: int, factor: float, gain: 
 
 
 @_compiled
-def apply_layer(evidence: CellFloats, n: int, factor: float, gain: float, prior: float,
-                per_touch: float,
-                l_min: float, l_max: float, dirty: Indices, n_dirty: int, dirty_mark: np.ndarray,
-                region: Indices, log_odds: CellFloats, probability: CellFloats) -> int:
+def apply_layer(evidence: CellFloats, n: int, factor: float, gain: float, model: PathModel,
+                dirty: Indices, n_dirty: int, dirty_mark: np.ndarray, region: Indices,
+                log_odds: CellFloats, probability: CellFloats) -> int:
     """Recompute the log-odds and probability of every cell with evidence within
     ``LAYER_RADIUS`` of the first ``n_dirty`` cells of ``dirty`` (eq. 4 at distance 0 on
-    the layered evidence, clamped), and clear their ``dirty_mark``. ``region`` is scratch
-    (n^3). Returns how many cells were recomputed."""
+    the layered evidence, clamped: the path model's own update, path_kernels), and clear
+    their ``dirty_mark``. ``region`` is scratch (n^3). Returns how many cells were
+    recomputed."""
     r = LAYER_RADIUS
     count = 0
     # The union of the dirty cells' neighbourhoods, each cell once: dirty_mark, cleared
@@ -163,8 +164,8 @@ def apply_layer(evidence: CellFloats, n: int, factor: float, gain: float, prior:
     for k in range(count):
         j = region[k]
         dirty_mark[j] = False
-        value = min(max(prior + layered_evidence(evidence, n, j, factor, gain) * per_touch,
-                        l_min), l_max)
+        value = _clamp(model.prior + layered_evidence(evidence, n, j, factor, gain)
+                       * model.log_odds_per_touch, model.l_min, model.l_max)
         log_odds[j] = value
         probability[j] = 1.0 / (1.0 + math.exp(-value))
     return count

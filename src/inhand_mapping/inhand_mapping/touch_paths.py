@@ -151,11 +151,10 @@ class TouchPaths:
         n_dirty = int(counts.n_dirty[0])
         if n_dirty == 0:
             return 0
-        model = self.model
         done = int(surface_layer.apply_layer(
-            self.evidence, self.geometry.n, self.layer_factor, self.sheet_gain, model.prior,
-            model.log_odds_per_touch, model.l_min, model.l_max, counts.dirty, n_dirty,
-            counts.dirty_mark, self._region, self.cells.log_odds, self.cells.probability))
+            self.evidence, self.geometry.n, self.layer_factor, self.sheet_gain, self.model,
+            counts.dirty, n_dirty, counts.dirty_mark, self._region, self.cells.log_odds,
+            self.cells.probability))
         counts.n_dirty[0] = 0
         return done
 
