@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'simulate_session = inhand_sim.commands.simulate_session:main',
+            'simulate_pivot = inhand_sim.commands.simulate_pivot:main',
         ],
     },
 )

@@ -21,6 +21,7 @@ setup(
         'console_scripts': [
             'bag_replay = inhand_tools.commands.bag_replay:main',
             'build_map = inhand_tools.commands.build_map:main',
+            'calibrate_fingertips = inhand_tools.commands.calibrate_fingertips:main',
             'calibrate_vision_model = inhand_tools.commands.calibrate_vision_model:main',
             'bag_record = inhand_tools.commands.bag_record:main',
             'topic_echo = inhand_tools.commands.topic_echo:main',

@@ -139,7 +139,8 @@ class BagRegistration:
                 self.registrar.add_object_pose(times[k], poses[k, :3], poses[k, 3:])
             tips = part & ~is_object
             if tips.any():
-                self.registrar.add_fingertips(times[tips], poses[tips, :3], finger_ids[tips])
+                self.registrar.add_fingertips(times[tips], poses[tips, :3], finger_ids[tips],
+                                              quaternions=poses[tips, 3:])
             yield self._as_published(*self.registrar.drain())
 
     @staticmethod

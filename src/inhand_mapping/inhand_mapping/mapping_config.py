@@ -28,6 +28,12 @@ from inhand_common.ros_names import DEFAULT_OBJECT_STATION, station_pose_topic
 from inhand_mapping.fusion import FUSIONS, POOLINGS
 from inhand_mapping.occupancy import DISTANCES, TOUCH_MODELS, GridSpec, OccupancyGrid, SensorModel
 from inhand_mapping.registration import Registrar
+from inhand_mapping.tip_offsets import (
+    MAX_PAD_RADIUS,
+    MAX_TIP_OFFSET,
+    TipOffsets,
+    tip_offsets_problem,
+)
 
 __all__ = ['OCCUPANCY_PARAMETERS', 'REGISTRATION_PARAMETERS', 'OccupancyConfig',
            'RegistrationConfig', 'load_parameters', 'parse_overrides']
@@ -40,6 +46,13 @@ REGISTRATION_PARAMETERS = (
               '(subscribes polhemus/<object_name>/pose in tracked mode)'),
     ParamSpec('finger_names', ['thumb', 'index', 'middle'], 'Station names of the fingertip '
               'sensors (subscribes polhemus/<name>/pose)', min_length=1),
+    ParamSpec('tip_offsets', [0.0, 0.0, 0.0], 'Finger pad centre in each fingertip '
+              "sensor's own frame (m): x, y, z per finger in the order of finger_names, or one "
+              'x, y, z for all (from calibrate_fingertips; 0: the sensor is the contact point)',
+              minimum=-MAX_TIP_OFFSET, maximum=MAX_TIP_OFFSET, min_length=3),
+    ParamSpec('pad_radius', 0.0, 'Radius of the finger pads (m): the contact is this far from '
+              'the pad centre, the way the pad faces (0: the pad centre is the contact point)',
+              minimum=0.0, maximum=MAX_PAD_RADIUS),
     ParamSpec('max_gap', 0.05, 'Longest gap (s) between two object poses to interpolate '
               'across; fingertips in longer gaps are dropped, never extrapolated',
               minimum=0.001, maximum=5.0),
@@ -154,6 +167,8 @@ class RegistrationConfig:
     mode: str                       # 'tracked' or 'static'
     object_name: str                # station name of the object sensor (tracked mode)
     finger_names: tuple[str, ...]   # station names of the fingertips; index = finger id
+    tip_offsets: tuple[float, ...]  # sensor -> pad centre, x, y, z per finger (m, sensor frame)
+    pad_radius: float               # m
     max_gap: float                  # s
     max_pending: float              # s (wall clock)
     publish_period: float           # s
@@ -169,11 +184,18 @@ class RegistrationConfig:
         if values['mode'] == 'tracked' and values['object_name'] in names:
             problems.append(f"parameter 'object_name' = {values['object_name']!r} is also in "
                             "'finger_names'")
+        offsets_problem = tip_offsets_problem(values['tip_offsets'], names)
+        if offsets_problem:
+            problems.append(offsets_problem)
         frames = FrameNames.from_parameters(values, problems)
         if problems:
             raise ParameterError(problems)
         return cls(mode=values['mode'], object_name=values['object_name'],
-                   finger_names=tuple(names), max_gap=float(values['max_gap']),
+                   finger_names=tuple(names),
+                   tip_offsets=tuple(TipOffsets.from_parameter(values['tip_offsets'],
+                                                               len(names)).as_parameter()),
+                   pad_radius=float(values['pad_radius']),
+                   max_gap=float(values['max_gap']),
                    max_pending=float(values['max_pending']),
                    publish_period=float(values['publish_period']), frames=frames)
 
@@ -193,7 +215,8 @@ class RegistrationConfig:
 
     def make_registrar(self) -> Registrar:
         return Registrar(self.mode, self.max_gap, self.max_pending,
-                         fingers=range(len(self.finger_names)))
+                         fingers=range(len(self.finger_names)),
+                         tip_offsets=TipOffsets(self.tip_offsets, self.pad_radius))
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,11 @@ That frame moves with the object, so it is the same frame at every time; the map
 sits in the tracker frame (:attr:`Registrar.first_object_pose`), so anything measured in the
 tracker frame before the exploration (camera texture, for one) can be brought into the map.
 
+The position registered is where the finger pad touches: the sensor's position moved by
+the finger's tip offset in the sensor's own frame at the same stamp to the pad's centre,
+then by the pad's radius to its surface (tip_offsets.py; both zero by default, then the
+sensor's position itself).
+
 In ``static`` mode there is no object sensor: the object is fixed and the map frame is the
 tracker frame, so points pass through unchanged (invalid ones are still rejected).
 
@@ -99,6 +104,7 @@ from inhand_common.array_types import (
     Vector3,
 )
 from inhand_common.rotations import quaternion_to_matrix, slerp
+from inhand_mapping.tip_offsets import TipOffsets
 
 __all__ = ['MODES', 'STREAM_RESTART', 'ObjectPoseAt', 'Registrar', 'RegistrationStats']
 
@@ -220,13 +226,16 @@ class Registrar:
     """
 
     def __init__(self, mode: str = 'tracked', max_gap: float = 0.05,
-                 max_pending: float = 1.0, fingers: Iterable[int] = ()):
+                 max_pending: float = 1.0, fingers: Iterable[int] = (),
+                 tip_offsets: TipOffsets | None = None):
         if mode not in MODES:
             raise ValueError(f"registration mode must be one of {MODES}, got {mode!r}")
         for name, value in (('max_gap', max_gap), ('max_pending', max_pending)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be a positive number of seconds, got {value!r}')
         self.mode = mode
+        # Sensor -> contact per finger (tip_offsets.py); None or all zero: the raw positions.
+        self.tip_offsets = None if tip_offsets is None or tip_offsets.zero else tip_offsets
         self.max_gap = float(max_gap)
         self.max_pending = float(max_pending)
         self.stats = RegistrationStats()
@@ -329,12 +338,15 @@ class Registrar:
         return ObjectPoseAt('before_first' if match.before_first[0] else 'gap')
 
     def add_fingertips(self, t: ArrayLike, positions: ArrayLike, fingers: ArrayLike,
-                       now: float | None = None) -> None:
+                       now: float | None = None, quaternions: ArrayLike | None = None) -> None:
         """Buffer fingertip positions: ``t`` (N,) seconds, ``positions`` (N, 3), ``fingers`` (N,).
 
         A scalar ``t`` or ``fingers`` applies to every row; one position may be given as (3,).
         Rows with a non-finite time or position are dropped here (``dropped_invalid``).
         ``now`` (monotonic wall clock, s) is when they arrived, for the waiting limits.
+        ``quaternions`` (N, 4), the sensors' orientations at the same stamps, are needed when
+        the registrar has tip offsets: each position is then moved to its contact point
+        (tip_offsets.py), and a row whose orientation is not a rotation is dropped as invalid.
         """
         pos = np.asarray(positions, dtype=float)
         if pos.ndim == 1:
@@ -347,10 +359,16 @@ class Registrar:
         if given.size and not np.issubdtype(given.dtype, np.integer):
             raise ValueError(f'fingers must be integers (station numbers), got {given.dtype}')
         fing = given.astype(np.int32)
+        if self.tip_offsets is not None and quaternions is None:
+            raise ValueError("this registrar has tip offsets: add_fingertips needs the sensors' "
+                             'quaternions')
         self.stats.received += n
         if n == 0:
             return
         valid = np.isfinite(times) & np.isfinite(pos).all(axis=1)
+        if self.tip_offsets is not None and quaternions is not None:
+            pos, placed = self.tip_offsets.contacts(pos, quaternions, fing)
+            valid &= placed
         if not valid.all():
             self.stats.dropped_invalid += int(n - np.count_nonzero(valid))
             times, pos, fing = times[valid], pos[valid], fing[valid]

@@ -47,6 +47,7 @@ import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -129,9 +130,25 @@ class SessionSettings:
     # view (from the tracker's -y side, 34 degrees up).
     camera_azimuth_deg: float | None = None
     camera_elevation_deg: float | None = None
+    # Real fingers (README, "Real fingers"): the sensor on the nail, the pad a ball touching
+    # the surface. tip_offset_mm: the pad centre in the sensor's frame, one x, y, z for
+    # every finger or one per finger (None: the sensor is the contact point, as in the
+    # bundled bags); pad_radius_mm: the pad ball's radius; finger_roll_deg: how far the
+    # finger rolls about its own axis during a stroke (amplitude).
+    tip_offset_mm: tuple | None = None
+    pad_radius_mm: float = 0.0
+    finger_roll_deg: float = 0.0
 
     def __post_init__(self):
         problems = []
+        if self.tip_offset_mm is not None and np.shape(self.tip_offset_mm) not in (
+                (3,), (len(FINGERS), 3)):
+            problems.append(f'tip_offset_mm {self.tip_offset_mm}: one x, y, z, or one per '
+                            f'finger ({len(FINGERS)})')
+        if not 0.0 <= self.pad_radius_mm <= 15.0:
+            problems.append(f'pad_radius_mm {self.pad_radius_mm} must be in [0, 15]')
+        if not 0.0 <= self.finger_roll_deg <= 60.0:
+            problems.append(f'finger_roll_deg {self.finger_roll_deg} must be in [0, 60]')
         if self.rate <= 0 or not math.isfinite(self.rate):
             problems.append(f'rate {self.rate} must be a positive number of Hz')
         if not (0 < self.duration <= 24 * 3600):
@@ -164,13 +181,26 @@ class SessionSettings:
         # So is the number of pairs when it is the one pair they had, and the mesh's scale
         # and up axis when they are the file's own.
         unset = {'camera_azimuth_deg': None, 'camera_elevation_deg': None, 'stereo_shots': 1,
-                 'mesh_scale': 1.0, 'mesh_up': 'z'}
+                 'mesh_scale': 1.0, 'mesh_up': 'z', 'tip_offset_mm': None, 'pad_radius_mm': 0.0,
+                 'finger_roll_deg': 0.0}
         values = {key: value for key, value in asdict(self).items()
                   if not (key in unset and value == unset[key])}
         # The hand's properties likewise when they are the default hand's.
         values['exploration'] = {key: value for key, value in values['exploration'].items()
                                  if not (key in HAND_DEFAULTS and value == HAND_DEFAULTS[key])}
         return json.dumps(values, sort_keys=True, separators=(',', ':'))
+
+    @property
+    def real_fingers(self) -> bool:
+        """Whether the sensors sit off the contact point (the pad's centre, a nail)."""
+        return self.tip_offset_mm is not None or self.pad_radius_mm > 0 \
+            or self.finger_roll_deg > 0
+
+    def tip_offsets(self) -> np.ndarray:
+        """(fingers, 3) m: each finger's pad centre in its sensor's frame."""
+        offsets = np.zeros(3) if self.tip_offset_mm is None else \
+            np.asarray(self.tip_offset_mm, dtype=float) / 1000.0
+        return np.broadcast_to(offsets, (len(FINGERS), 3)).copy()
 
     @property
     def camera_direction(self) -> tuple[float, float, float]:
@@ -316,6 +346,45 @@ def _fingertip_orientations(obj: SolidObject, p_obj: np.ndarray, q_obj: np.ndarr
     return quaternion_normalize(quaternion_multiply(q_obj, q_local))
 
 
+MOTION_SMOOTHING = 0.3    # s: the finger's axis follows the motion averaged over this long
+ROLL_PERIOD = 5.0         # s: one roll of the finger to each side and back
+PITCH_SHARE = 0.3         # the finger's pitch varies by this share of the roll's amplitude
+
+
+def _real_finger(obj: SolidObject, p_obj: np.ndarray, times: np.ndarray, finger: int,
+                 settings: SessionSettings, q_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A real finger at the fingertip path ``p_obj`` (object frame; on the surface at a
+    contact): the sensor's position (object frame) and orientation (tracker frame).
+
+    The pad is a ball of ``pad_radius_mm`` touching the surface, so its centre is one radius
+    out along the outward normal. The finger's axis (sensor x) follows the motion along the
+    surface (averaged over ``MOTION_SMOOTHING``), the nail (sensor z) faces away from the
+    surface; the finger rolls about its axis by up to ``finger_roll_deg`` and pitches by
+    ``PITCH_SHARE`` of that. The sensor is where the pad centre minus the offset, turned by
+    the sensor's orientation, puts it (tip_offsets.py's relation, inverted)."""
+    n = obj.normals(p_obj)
+    pad = p_obj + settings.pad_radius_mm / 1000.0 * n
+    velocity = np.gradient(p_obj, times, axis=0) if len(times) > 1 else np.zeros_like(p_obj)
+    width = max(1, int(round(MOTION_SMOOTHING / max(float(np.median(np.diff(times))), 1e-6))))
+    kernel = np.ones(width) / width
+    smooth = np.stack([np.convolve(velocity[:, k], kernel, mode='same') for k in range(3)], axis=1)
+    along = smooth - np.sum(smooth * n, axis=1, keepdims=True) * n
+    ref = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    fallback = ref - np.sum(ref * n, axis=1, keepdims=True) * n
+    moving = np.linalg.norm(along, axis=1) > 1e-3
+    x = np.where(moving[:, None], along, fallback)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.cross(n, x)
+    q_local = matrix_to_quaternion(np.stack([x, y, n], axis=2))
+    amplitude = math.radians(settings.finger_roll_deg)
+    roll = amplitude * np.sin(2.0 * math.pi * times / ROLL_PERIOD + finger)
+    pitch = PITCH_SHARE * amplitude * np.sin(2.0 * math.pi * times / (1.4 * ROLL_PERIOD) + 2 * finger)
+    q_local = quaternion_normalize(quaternion_multiply(
+        q_local, euler_zyx_to_quaternion(np.zeros_like(roll), pitch, roll)))
+    sensor = pad - rotate_vectors(q_local, settings.tip_offsets()[finger])
+    return sensor, quaternion_normalize(quaternion_multiply(q_obj, q_local))
+
+
 def simulate(settings: SessionSettings, progress: Callable[[str], None] | None = None
              ) -> SimulatedSession:
     """Simulate a session: deterministic in ``settings`` (seeded numpy Generators)."""
@@ -352,9 +421,12 @@ def simulate(settings: SessionSettings, progress: Callable[[str], None] | None =
     poses = []
     for f in range(len(FINGERS)):
         p_obj = exploration.positions[f]
+        if settings.real_fingers:
+            p_obj, q_tip = _real_finger(obj, p_obj, rel, f, settings, obj_q)
+        else:
+            q_tip = _fingertip_orientations(obj, p_obj, obj_q)
         p_trk = obj_pos + rotate_vectors(obj_q, p_obj)
         p_meas = p_trk + noise.sample((n_frames,), rng_noise)
-        q_tip = _fingertip_orientations(obj, p_obj, obj_q)
         poses.append(np.concatenate([p_meas, q_tip], axis=1))
     if not settings.static:
         sensors = [('object', np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))]
@@ -441,9 +513,18 @@ def _stereo_truth(obj: SolidObject, shot: RenderedPair, surface: np.ndarray,
 
 # --- files -------------------------------------------------------------------------------
 
-def write_bag(session: SimulatedSession, path, progress: Callable[[float], None] | None = None
+class PoseRecording(Protocol):
+    """What :func:`write_bag` writes: a session's poses (and its stereo pairs, if any)."""
+    stations: tuple
+    stamps_ns: np.ndarray            # (T,) int64
+    poses: np.ndarray                # (S, T, 7)
+    stereo_shots: list
+
+
+def write_bag(session: PoseRecording, path, progress: Callable[[float], None] | None = None
               ) -> Path:
-    """Write the session's poses as a rosbag2 MCAP bag at ``path`` (must not exist)."""
+    """Write the session's poses as a rosbag2 MCAP bag at ``path`` (must not exist);
+    ``session`` is a :class:`SimulatedSession` or a pivot session (pivot.py)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
     path = Path(path)

@@ -117,7 +117,7 @@ class RegistrationNode(Node):
                 self._taken += len(raw)
                 stamps, _, poses = decode_pose_stamped_many(raw)
                 self.registrar.add_fingertips(stamp_seconds(stamps), poses[:, :3], index,
-                                              now=now)
+                                              now=now, quaternions=poses[:, 3:])
                 latest.append(self._frame_of(stamps, poses,
                                              self.frames.fingertip_frame(self.fingers[index])))
         if latest:

@@ -5,6 +5,7 @@
                      --rate 15|30|120|240 --duration SECONDS --seed N [--speed CM_PER_S]
                      [--lifts continuous|between-frames] [--noise-mm 1.0]
                      [--hand NAME=VALUE ...]
+                     [--tip-offset-mm X Y Z ...] [--pad-radius-mm R] [--finger-roll-deg D]
                      --output bags/NAME [--force] [--quiet]
 
 ``--object``: a built-in object (cat, bottle, mug), a mesh this package ships (cup, animal,
@@ -72,6 +73,16 @@ def _seed(text: str) -> int:
     return value
 
 
+def _finger_settings(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    """The real-finger settings of the arguments (none given: the bundled bags' fingers)."""
+    offsets = args.tip_offset_mm
+    if offsets is not None and len(offsets) not in (1, 3):
+        parser.error(f'--tip-offset-mm: give it once or once per finger (3), not {len(offsets)}')
+    return {'tip_offset_mm': None if offsets is None else
+            (tuple(offsets[0]) if len(offsets) == 1 else tuple(map(tuple, offsets))),
+            'pad_radius_mm': args.pad_radius_mm, 'finger_roll_deg': args.finger_roll_deg}
+
+
 def _hand(text: str) -> tuple[str, object]:
     try:
         return parse_hand_setting(text)
@@ -136,6 +147,15 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument('--noise-mm', type=number(at_least=0.0, at_most=50.0, unit='mm'),
                         default=1.0, metavar='MM',
                         help='fingertip tracker noise, standard deviation per axis (default 1.0)')
+    parser.add_argument('--tip-offset-mm', type=float, nargs=3, action='append',
+                        metavar=('X', 'Y', 'Z'),
+                        help='real fingers: the pad centre in the fingertip sensor\'s frame '
+                        '(sensor on the nail); once for every finger or once per finger')
+    parser.add_argument('--pad-radius-mm', type=number(at_least=0.0, at_most=15.0, unit='mm'),
+                        default=0.0, metavar='MM', help='real fingers: the pad\'s radius')
+    parser.add_argument('--finger-roll-deg', type=number(at_least=0.0, at_most=60.0),
+                        default=0.0, metavar='DEG',
+                        help='real fingers: how far the finger rolls about its axis')
     parser.add_argument('--output', required=True, metavar='bags/NAME',
                         help='bag folder to write; the ground truth goes to NAME.truth.npz beside it')
     parser.add_argument('--stereo', action='store_true',
@@ -222,7 +242,8 @@ def main(argv=None) -> int:
         second_object_sensor=args.second_object_sensor, rate=args.rate,
         duration=args.duration, seed=args.seed, noise_mm=args.noise_mm, stereo=args.stereo,
         camera_distance=args.camera_distance, camera_azimuth_deg=args.camera_azimuth,
-        camera_elevation_deg=args.camera_elevation, stereo_shots=args.stereo_shots)
+        camera_elevation_deg=args.camera_elevation, stereo_shots=args.stereo_shots,
+        **_finger_settings(parser, args))
     progress = _Progress(args.quiet)
     started = time.monotonic()
     try:
