@@ -125,21 +125,19 @@ def pivot_window(times: ArrayLike, quaternions: ArrayLike) -> np.ndarray:
     return window
 
 
-def _least_squares(rotations: np.ndarray, positions: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Solve [R_i -I][o; b] = -p_i: (offset, pivot, per-pose distance of R_i o + p_i to b)
-    and the unknowns' covariance up to the noise variance, (A^T A)^-1."""
-    n = len(rotations)
-    a = np.empty((n, 3, 6))
+def _system(rotations: np.ndarray) -> np.ndarray:
+    """The matrix A of [R_i -I][o; b] = -p_i, (3N, 6)."""
+    a = np.empty((len(rotations), 3, 6))
     a[:, :, :3] = rotations
     a[:, :, 3:] = -np.eye(3)
-    a = a.reshape(3 * n, 6)
-    solution, *_ = np.linalg.lstsq(a, -positions.reshape(-1), rcond=None)
-    offset, pivot = solution[:3], solution[3:]
-    pads = np.einsum('nij,j->ni', rotations, offset) + positions
-    normal = a.T @ a
-    inverse = np.linalg.pinv(normal)
-    return np.concatenate([offset, pivot]), np.linalg.norm(pads - pivot, axis=1), inverse
+    return a.reshape(-1, 6)
+
+
+def _pad_distances(rotations: np.ndarray, positions: np.ndarray, solution: np.ndarray
+                   ) -> np.ndarray:
+    """Each pose's distance from its pad centre R_i o + p_i to the pivot point b."""
+    pads = np.einsum('nij,j->ni', rotations, solution[:3]) + positions
+    return np.linalg.norm(pads - solution[3:], axis=1)
 
 
 def solve_pivot(positions: ArrayLike, quaternions: ArrayLike,
@@ -163,21 +161,25 @@ def solve_pivot(positions: ArrayLike, quaternions: ArrayLike,
     rotations = quaternion_to_matrix(q)
     kept = np.ones(len(p), dtype=bool)
     for _ in range(ROUNDS):
-        solution, distance, inverse = _least_squares(rotations[kept], p[kept])
-        pads = np.einsum('nij,j->ni', rotations, solution[:3]) + p
-        bound = max(OUTLIER_FACTOR * float(np.median(distance)), OUTLIER_FLOOR)
-        agree = np.linalg.norm(pads - solution[3:], axis=1) <= bound
+        solution, *_ = np.linalg.lstsq(_system(rotations[kept]), -p[kept].reshape(-1), rcond=None)
+        distance = _pad_distances(rotations, p, solution)
+        bound = max(OUTLIER_FACTOR * float(np.median(distance[kept])), OUTLIER_FLOOR)
+        agree = distance <= bound
         if np.array_equal(agree, kept) or np.count_nonzero(agree) < MIN_POSES:
             break
         kept = agree
     else:
-        solution, distance, inverse = _least_squares(rotations[kept], p[kept])
+        solution, *_ = np.linalg.lstsq(_system(rotations[kept]), -p[kept].reshape(-1), rcond=None)
+        distance = _pad_distances(rotations, p, solution)
     offset, pivot = solution[:3], solution[3:]
-    residual = float(np.sqrt(np.mean(distance ** 2)))
+    residuals = distance[kept]
+    residual = float(np.sqrt(np.mean(residuals ** 2)))
     n_kept = int(np.count_nonzero(kept))
-    # Noise variance per equation from the fit (3 per pose, 6 unknowns).
-    variance = float(np.sum(distance ** 2)) / max(3 * n_kept - 6, 1)
-    uncertainty = np.sqrt(np.maximum(np.diag(inverse)[:3] * variance, 0.0))
+    # Noise variance per equation from the fit (3 per pose, 6 unknowns); the unknowns'
+    # covariance is that times (A^T A)^-1.
+    variance = float(np.sum(residuals ** 2)) / max(3 * n_kept - 6, 1)
+    a = _system(rotations[kept])
+    uncertainty = np.sqrt(np.maximum(np.diag(np.linalg.pinv(a.T @ a))[:3] * variance, 0.0))
     rotation = _rotation_range_deg(q[kept])
     problem = None
     if n_kept < MIN_KEPT * len(p):

@@ -334,13 +334,19 @@ def _moving_pose(settings: SessionSettings, obj: SolidObject, windows: list,
 
 # --- the simulation ----------------------------------------------------------------------
 
+def _tangent_reference(n: np.ndarray) -> np.ndarray:
+    """A unit tangent per outward normal (N, 3): the object's x (its y where the normal is
+    near x) projected into the tangent plane."""
+    ref = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    x = ref - np.sum(ref * n, axis=1, keepdims=True) * n
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
 def _fingertip_orientations(obj: SolidObject, p_obj: np.ndarray, q_obj: np.ndarray) -> np.ndarray:
     """Fingertip sensor orientations in the tracker frame: z along the outward normal
     there (object frame), x along the object's x as far as it goes, composed with the object's."""
     n = obj.normals(p_obj)
-    ref = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    x = ref - np.sum(ref * n, axis=1, keepdims=True) * n
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    x = _tangent_reference(n)
     y = np.cross(n, x)
     q_local = matrix_to_quaternion(np.stack([x, y, n], axis=2))
     return quaternion_normalize(quaternion_multiply(q_obj, q_local))
@@ -369,10 +375,8 @@ def _real_finger(obj: SolidObject, p_obj: np.ndarray, times: np.ndarray, finger:
     kernel = np.ones(width) / width
     smooth = np.stack([np.convolve(velocity[:, k], kernel, mode='same') for k in range(3)], axis=1)
     along = smooth - np.sum(smooth * n, axis=1, keepdims=True) * n
-    ref = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    fallback = ref - np.sum(ref * n, axis=1, keepdims=True) * n
     moving = np.linalg.norm(along, axis=1) > 1e-3
-    x = np.where(moving[:, None], along, fallback)
+    x = np.where(moving[:, None], along, _tangent_reference(n))
     x /= np.linalg.norm(x, axis=1, keepdims=True)
     y = np.cross(n, x)
     q_local = matrix_to_quaternion(np.stack([x, y, n], axis=2))
