@@ -12,7 +12,12 @@ from pathlib import Path
 import numpy as np
 
 from inhand_common.ros_names import station_pose_topic
-from inhand_common.rotations import euler_zyx_to_quaternion, rotate_vectors
+from inhand_common.rotations import (
+    euler_zyx_to_quaternion,
+    matrix_to_quaternion,
+    quaternion_multiply,
+    rotate_vectors,
+)
 from inhand_mapping.pose_cdr import encode_pose_stamped
 
 FINGERS = ('thumb', 'index', 'middle')
@@ -85,6 +90,31 @@ def sphere_session(seconds: float = 4.0, rate: float = 240.0, radius: float = 0.
             frame[name] = (obj_p + rotate_vectors(obj_q, local), np.array([0.0, 0.0, 0.0, 1.0]))
         frames.append((t, frame))
     return frames, centre
+
+
+def on_the_nail(frames, centre_in_object: np.ndarray, offset: np.ndarray, pad_radius: float,
+                roll_deg: float = 20.0):
+    """The same contacts made by real fingers: each fingertip sensor on the nail, ``offset``
+    (sensor frame, m) from its pad centre, the pad ``pad_radius`` round, its nail facing out
+    of the sphere (centred at ``centre_in_object``) and the finger rolled ``roll_deg`` about
+    its x axis. The frames carry the sensors' poses (what the driver would publish)."""
+    rolled = euler_zyx_to_quaternion(0.0, 0.0, np.radians(roll_deg))
+    out = []
+    for t, frame in frames:
+        obj_p, obj_q = frame['object']
+        centre = obj_p + rotate_vectors(obj_q, centre_in_object)
+        nail = dict(frame)
+        for name in FINGERS:
+            contact = frame[name][0]
+            outward = (contact - centre) / np.linalg.norm(contact - centre)
+            side = np.cross(outward, [1.0, 0.0, 0.0] if abs(outward[0]) < 0.9 else [0.0, 1.0, 0.0])
+            side /= np.linalg.norm(side)
+            axes = np.stack([np.cross(side, outward), side, outward], axis=1)
+            q = quaternion_multiply(matrix_to_quaternion(axes), rolled)
+            pad_centre = contact + pad_radius * outward
+            nail[name] = (pad_centre - rotate_vectors(q, offset), q)
+        out.append((t, nail))
+    return out
 
 
 def stamp_parts(t: float) -> tuple[int, int]:

@@ -24,7 +24,7 @@ from sensor_msgs.msg import PointCloud2
 
 from inhand_common.point_cloud import from_point_cloud2
 from inhand_mapping.map_io import load_npz, read_ply
-from pose_sessions import sphere_session, write_pose_bag
+from pose_sessions import on_the_nail, sphere_session, write_pose_bag
 from ros_helpers import (
     WORKSPACE,
     CloudCounter,
@@ -120,12 +120,14 @@ def session():
     return sphere_session(seconds=4.0, surface_points=12, moving=True)
 
 
-def test_nodes_map_a_moving_sphere_and_match_build_map(session, tmp_path):
-    frames, centre = session
-    config = str(WORKSPACE / 'config' / 'mapping.yaml')
-    occupancy_args = ['occupancy_node', '--ros-args', '--params-file', config,
+def map_over_dds_and_from_bag(frames, configs: list[str], tmp_path):
+    """The session through the nodes over DDS (saved as node_map) and through build_map
+    from a bag of the same poses (bag_map): the two grids, the occupied cloud, the object
+    frame and the centre of mass the nodes published, and the registration node's log."""
+    params = [a for c in configs for a in ('--params-file', c)]
+    occupancy_args = ['occupancy_node', '--ros-args', *params,
                       '-p', f'output_dir:={tmp_path}', '-p', 'map_name:=node_map']
-    with running(['registration_node', '--ros-args', '--params-file', config]) as registration, \
+    with running(['registration_node', '--ros-args', *params]) as registration, \
             running(occupancy_args) as occupancy:
         feed(frames, registration)
         object_frame = latest('registration/object_frame', PoseStamped)
@@ -135,31 +137,67 @@ def test_nodes_map_a_moving_sphere_and_match_build_map(session, tmp_path):
         com = latest('occupancy/center_of_mass', PointStamped)
         assert registration.interrupt() == 0, registration.output()
         assert occupancy.interrupt() == 0, occupancy.output()
-    assert 'of 2880 fingertip positions registered' in registration.output()
-    # The object frame is the object sensor's first pose.
-    first_position = frames[0][1]['object'][0]
-    assert np.allclose([object_frame.pose.position.x, object_frame.pose.position.y,
-                        object_frame.pose.position.z], first_position, atol=1e-9)
-    # Every occupied cell lies on the sphere's shell (within a half cell diagonal).
-    cells = np.stack([occupied['x'], occupied['y'], occupied['z']], axis=1).astype(float)
-    assert len(cells) >= 15
-    radial = np.linalg.norm(cells - centre, axis=1) - RADIUS
-    assert np.abs(radial).max() <= 0.005 * math.sqrt(3) / 2 + 1e-6
-    assert np.all(occupied['intensity'] > 0.8)
-    assert np.linalg.norm(np.array([com.point.x, com.point.y, com.point.z]) - centre) < 0.01
-    # build_map on a bag of the same poses writes the same map.
     bag = write_pose_bag(tmp_path / 'session', frames)
-    result = subprocess.run([executable_path('build_map'), str(bag), '--config', config,
+    result = subprocess.run([executable_path('build_map'), str(bag),
+                             *[a for c in configs for a in ('--config', c)],
                              '--output-dir', str(tmp_path), '--name', 'bag_map', '--quiet'],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
     node_grid, _ = load_npz(tmp_path / 'node_map.npz')
     bag_grid, _ = load_npz(tmp_path / 'bag_map.npz')
+    return node_grid, bag_grid, occupied, object_frame, com, registration.output()
+
+
+def assert_same_map(node_grid, bag_grid, tmp_path) -> None:
     assert node_grid.counts.integrated == bag_grid.counts.integrated == 2880
     assert np.array_equal(node_grid.log_odds, bag_grid.log_odds)
     assert np.array_equal(node_grid.hits, bag_grid.hits)
     node_ply, bag_ply = read_ply(tmp_path / 'node_map.ply'), read_ply(tmp_path / 'bag_map.ply')
     assert np.array_equal(node_ply, bag_ply)
+
+
+def on_the_shell(occupied, centre) -> None:
+    """Every occupied cell lies on the sphere's shell (within a half cell diagonal)."""
+    cells = np.stack([occupied['x'], occupied['y'], occupied['z']], axis=1).astype(float)
+    assert len(cells) >= 15
+    radial = np.linalg.norm(cells - centre, axis=1) - RADIUS
+    assert np.abs(radial).max() <= 0.005 * math.sqrt(3) / 2 + 1e-6
+    assert np.all(occupied['intensity'] > 0.8)
+
+
+def test_nodes_map_a_moving_sphere_and_match_build_map(session, tmp_path):
+    frames, centre = session
+    config = str(WORKSPACE / 'config' / 'mapping.yaml')
+    node_grid, bag_grid, occupied, object_frame, com, log = map_over_dds_and_from_bag(
+        frames, [config], tmp_path)
+    assert 'of 2880 fingertip positions registered' in log
+    # The object frame is the object sensor's first pose.
+    first_position = frames[0][1]['object'][0]
+    assert np.allclose([object_frame.pose.position.x, object_frame.pose.position.y,
+                        object_frame.pose.position.z], first_position, atol=1e-9)
+    on_the_shell(occupied, centre)
+    assert np.linalg.norm(np.array([com.point.x, com.point.y, com.point.z]) - centre) < 0.01
+    # build_map on a bag of the same poses writes the same map.
+    assert_same_map(node_grid, bag_grid, tmp_path)
+
+
+def test_real_fingers_map_the_sphere_and_the_nodes_match_build_map(session, tmp_path):
+    """Sensors on the nails, 10 mm from a 7 mm pad, the fingers rolled 20 degrees: with the
+    tip offset and the pad radius set, the map is the sphere's, and the graph over DDS
+    places every contact where build_map does (the pad normals from the traced surface
+    included), to the bit."""
+    frames, centre = session
+    nail = on_the_nail(frames, centre, np.array([0.002, 0.0, -0.010]), 0.007)
+    fingers = tmp_path / 'fingers.yaml'
+    fingers.write_text('/**/registration_node:\n  ros__parameters:\n'
+                       '    tip_offsets: [0.002, 0.0, -0.010]\n    pad_radius: 0.007\n')
+    node_grid, bag_grid, occupied, _, _, log = map_over_dds_and_from_bag(
+        nail, [str(WORKSPACE / 'config' / 'mapping.yaml'), str(fingers)], tmp_path)
+    assert 'of 2880 fingertip positions registered' in log
+    fitted = re.search(r'pad contacts: (\d+) of 2880', log)
+    assert fitted and int(fitted.group(1)) > 100, log   # some placed by the traced surface
+    on_the_shell(occupied, centre)
+    assert_same_map(node_grid, bag_grid, tmp_path)
 
 
 def test_twenty_replays_under_a_cpu_hog_lose_nothing(tmp_path):

@@ -20,6 +20,7 @@ import yaml
 from inhand_common.parameters import ParameterError
 from inhand_common.rotations import euler_zyx_to_quaternion
 from inhand_mapping.mapping_config import load_parameters
+from inhand_mapping.pad_normals import PadNormals
 from inhand_mapping.pivot_calibration import pivot_window, solve_pivot
 from inhand_mapping.registration import Registrar
 from inhand_mapping.tip_offsets import TipOffsets
@@ -57,6 +58,52 @@ def test_the_registrar_places_contacts_and_counts_rows_it_cannot_place():
     # the zero quaternion and the finger beyond the table: dropped, counted
     assert registrar.stats.dropped_invalid == 2
     assert registrar.stats.received == registrar.stats.registered + 2
+
+
+def _pad_centres_over_a_plane(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Pad centres 7 mm over the plane z = 0 (1 mm noise), a patch 8 cm wide, 240 Hz."""
+    rng = np.random.default_rng(seed)
+    centres = np.c_[rng.uniform(-0.04, 0.04, (n, 2)), 0.007 + rng.normal(0.0, 0.001, n)]
+    return centres, np.arange(n) / 240.0
+
+
+def test_a_rolled_pad_touches_along_the_surface_the_pads_have_traced():
+    # the finger rolled 40 degrees: its frame says the pad faces 40 degrees off the normal
+    centres, times = _pad_centres_over_a_plane(6000)
+    roll = math.radians(40.0)
+    facing = np.tile([0.0, math.sin(roll), -math.cos(roll)], (len(centres), 1))
+    normals = PadNormals()
+    contacts = normals.contacts(centres, facing, times, 0.007)
+    assert normals.fitted > 0.9 * len(centres)
+    late = contacts[len(centres) // 2:]
+    # on the surface (7 mm down), not 7 (1 - cos 40) = 1.6 mm over it
+    assert abs(float(np.mean(late[:, 2]))) < 0.0003
+    directions = (contacts - centres)[len(centres) // 2:] / 0.007
+    assert float(np.median(directions[:, 2])) < -0.99
+
+
+def test_pad_normals_do_not_depend_on_how_the_points_were_batched():
+    centres, times = _pad_centres_over_a_plane(3000, seed=1)
+    times = np.repeat(times[::3], 3)      # three fingers share each stamp
+    facing = np.tile([0.0, 0.0, -1.0], (len(centres), 1))
+    whole = PadNormals().contacts(centres, facing, times, 0.007)
+    split = PadNormals()
+    # the registrar releases whole stamps (all stations of a tracker frame at once)
+    stamps = np.array_split(np.arange(len(centres) // 3), 41)
+    parts = [split.contacts(centres[rows], facing[rows], times[rows], 0.007)
+             for rows in (np.arange(3 * k[0], 3 * k[-1] + 3) for k in stamps)]
+    assert np.array_equal(whole, np.concatenate(parts))
+
+
+def test_a_lone_stroke_keeps_the_fingers_own_facing():
+    # one straight stroke: its centres are a line, which has no normal
+    n = 400
+    centres = np.c_[np.linspace(0.0, 0.08, n), np.zeros(n), np.full(n, 0.007)]
+    facing = np.tile([0.0, math.sin(0.3), -math.cos(0.3)], (n, 1))
+    normals = PadNormals()
+    contacts = normals.contacts(centres, facing, np.arange(n) / 240.0, 0.007)
+    assert normals.fitted == 0
+    np.testing.assert_allclose(contacts, centres + 0.007 * facing)
 
 
 def test_zero_offsets_and_radius_leave_the_raw_positions():

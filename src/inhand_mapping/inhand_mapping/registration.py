@@ -13,8 +13,9 @@ tracker frame before the exploration (camera texture, for one) can be brought in
 
 The position registered is where the finger pad touches: the sensor's position moved by
 the finger's tip offset in the sensor's own frame at the same stamp to the pad's centre,
-then by the pad's radius to its surface (tip_offsets.py; both zero by default, then the
-sensor's position itself).
+then by the pad's radius to its surface, along the normal of the sheet the pad centres
+have traced (tip_offsets.py, pad_normals.py; both zero by default, then the sensor's
+position itself).
 
 In ``static`` mode there is no object sensor: the object is fixed and the map frame is the
 tracker frame, so points pass through unchanged (invalid ones are still rejected).
@@ -104,6 +105,7 @@ from inhand_common.array_types import (
     Vector3,
 )
 from inhand_common.rotations import quaternion_to_matrix, slerp
+from inhand_mapping.pad_normals import PadNormals
 from inhand_mapping.tip_offsets import TipOffsets
 
 __all__ = ['MODES', 'STREAM_RESTART', 'ObjectPoseAt', 'Registrar', 'RegistrationStats']
@@ -167,9 +169,10 @@ class _Fingertips(NamedTuple):
     """Fingertip rows waiting to be registered, all N long."""
 
     times: Times           # (N,) sensor seconds
-    positions: Points      # (N, 3) tracker frame
+    positions: Points      # (N, 3) tracker frame: the sensors', or the pad centres'
     fingers: StationIds    # (N,)
     arrivals: Times        # (N,) the ``now`` they arrived at (NaN without a clock)
+    facing: Points         # (N, 3) where each pad faces, tracker frame; (N, 0) without a pad
 
     @property
     def size(self) -> int:
@@ -177,7 +180,7 @@ class _Fingertips(NamedTuple):
 
     def part(self, rows: slice | Bools | Rows) -> _Fingertips:
         return _Fingertips(self.times[rows], self.positions[rows], self.fingers[rows],
-                           self.arrivals[rows])
+                           self.arrivals[rows], self.facing[rows])
 
 
 class _Stamps(NamedTuple):
@@ -236,6 +239,10 @@ class Registrar:
         self.mode = mode
         # Sensor -> contact per finger (tip_offsets.py); None or all zero: the raw positions.
         self.tip_offsets = None if tip_offsets is None or tip_offsets.zero else tip_offsets
+        # With a round pad, which way it touches: the surface its centres trace (pad_normals.py).
+        self.pad_normals = PadNormals() if self.tip_offsets is not None and \
+            self.tip_offsets.pad_radius > 0.0 else None
+        self._facing_width = 0 if self.pad_normals is None else 3
         self.max_gap = float(max_gap)
         self.max_pending = float(max_pending)
         self.stats = RegistrationStats()
@@ -366,12 +373,15 @@ class Registrar:
         if n == 0:
             return
         valid = np.isfinite(times) & np.isfinite(pos).all(axis=1)
+        facing = np.empty((n, self._facing_width))
         if self.tip_offsets is not None and quaternions is not None:
-            pos, placed = self.tip_offsets.contacts(pos, quaternions, fing)
+            pos, pad_facing, placed = self.tip_offsets.pads(pos, quaternions, fing)
+            if self._facing_width:
+                facing = pad_facing
             valid &= placed
         if not valid.all():
             self.stats.dropped_invalid += int(n - np.count_nonzero(valid))
-            times, pos, fing = times[valid], pos[valid], fing[valid]
+            times, pos, fing, facing = times[valid], pos[valid], fing[valid], facing[valid]
             if times.size == 0:
                 self._set_pending()
                 return
@@ -380,12 +390,14 @@ class Registrar:
             pos = pos.copy()
         if now is not None:
             self._clock = float(now)
-        times, pos, fing = self._new_stream_check(times, pos, fing, live=now is not None)
+        keep = self._new_stream_check(times, fing, live=now is not None)
+        if keep is not None:
+            times, pos, fing, facing = times[keep], pos[keep], fing[keep], facing[keep]
         if times.size == 0:
             self._set_pending()
             return
         arrival = np.full(times.size, math.nan if now is None else float(now))
-        self._chunks.append(_Fingertips(times, pos, fing, arrival))
+        self._chunks.append(_Fingertips(times, pos, fing, arrival, facing))
         self._n_pending += times.size
         self._pending_min_t = min(self._pending_min_t, float(times.min()))
         for finger in np.unique(fing).tolist():
@@ -412,27 +424,25 @@ class Registrar:
         return self._with_carried(self._resolve(final=True, now=None))
 
     # ------------------------------------------------------------------ new streams
-    def _new_stream_check(self, times: Times, positions: Points, fingers: StationIds,
-                          live: bool) -> tuple[Times, Points, StationIds]:
+    def _new_stream_check(self, times: Times, fingers: StationIds, live: bool) -> Bools | None:
         """Static mode: a finger's time going back starts a new stream. Tracked mode: the
         rows of the stream before a restart still in flight are dropped and counted, and,
         ``live`` (a clock given: topics delivered independently), a finger whose time went
-        back waits for the object's new stream."""
+        back waits for the object's new stream. Returns the rows to keep (None: all)."""
         if self.mode == 'static':
             if self._fingers_gone_back(times, fingers):
                 self._restart()
-            return times, positions, fingers
+            return None
         if live:
             self._new_stream_below.update(self._fingers_gone_back(times, fingers))
         if self._old_stream_end == -math.inf:
-            return times, positions, fingers
+            return None
         old = (times > self._latest_t + STREAM_RESTART) & \
             (times <= self._old_stream_end + STREAM_RESTART)
         if old.any():
             self.stats.dropped_old_stream += int(np.count_nonzero(old))
-            keep = ~old
-            return times[keep], positions[keep], fingers[keep]
-        return times, positions, fingers
+            return ~old
+        return None
 
     def _fingers_gone_back(self, times: Times, fingers: StationIds) -> dict[int, float]:
         """The fingers whose rows go back more than STREAM_RESTART before their stream's
@@ -488,14 +498,11 @@ class Registrar:
         self._n_pending = 0
         if not chunks:
             return _Fingertips(np.empty(0), np.empty((0, 3)), np.empty(0, dtype=np.int32),
-                               np.empty(0))
+                               np.empty(0), np.empty((0, self._facing_width)))
         if len(chunks) == 1:
             batch = chunks[0]
         else:
-            batch = _Fingertips(np.concatenate([c.times for c in chunks]),
-                                np.concatenate([c.positions for c in chunks]),
-                                np.concatenate([c.fingers for c in chunks]),
-                                np.concatenate([c.arrivals for c in chunks]))
+            batch = _Fingertips(*(np.concatenate(column) for column in zip(*chunks)))
         t = batch.times
         if t.size > 1 and (len(chunks) > 1 or np.any(t[1:] <= t[:-1])):
             # By time, then finger: the output order (and so the map, to the last bit of
@@ -555,7 +562,7 @@ class Registrar:
             self.stats.registered += batch.size
             self._keep_waiting(held)
             self._set_pending()
-            return batch.positions, batch.times, batch.fingers
+            return self._touching(batch.positions, batch), batch.times, batch.fingers
         if self._n_obj == 0:
             self._wait_for_first_object_pose(batch, held, final, now)
             return _empty_result()
@@ -636,6 +643,9 @@ class Registrar:
             d = batch.positions.reshape(n_stamps, per_stamp, 3) - pos[:, None, :]
             points = (d @ rot).reshape(n, 3)
             taken = batch
+            if self._facing_width:
+                taken = batch._replace(facing=(batch.facing.reshape(n_stamps, per_stamp, 3)
+                                               @ rot).reshape(n, 3))
         else:
             # Each point's row in rot / pos, or -1 where its stamp did not resolve.
             slot = np.full(n_stamps, -1)
@@ -646,8 +656,19 @@ class Registrar:
             taken = batch.part(take)
             d = taken.positions - pos[which]
             points = (d[:, None, :] @ rot[which])[:, 0, :]
+            if self._facing_width:
+                taken = taken._replace(facing=(taken.facing[:, None, :] @ rot[which])[:, 0, :])
         self.stats.registered += points.shape[0]
-        return points, taken.times, taken.fingers
+        return self._touching(points, taken), taken.times, taken.fingers
+
+    def _touching(self, centres: Points, batch: _Fingertips) -> Points:
+        """With a round pad, the contacts one radius from the registered pad ``centres``
+        (map frame; ``batch.facing`` in the same frame), the way the surface the pads have
+        traced says (pad_normals.py); otherwise the points as they are."""
+        if self.pad_normals is None or self.tip_offsets is None:
+            return centres
+        return self.pad_normals.contacts(centres, batch.facing, batch.times,
+                                         self.tip_offsets.pad_radius)
 
     def _keep_later_waiting(self, batch: _Fingertips, held: _Fingertips, later: Bools,
                             final: bool, now: float | None) -> None:

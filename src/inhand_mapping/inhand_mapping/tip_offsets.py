@@ -22,11 +22,12 @@ centre towards the surface::
     contact = pad + r R(q) u,     u = o / |o|   (u = -z when o = 0)
 
 ``u`` is the direction from the sensor on the nail to the pad centre, in the sensor's frame:
-the way the pad faces. The surface normal is not measured; the finger's own frame says
-where the pad faces, and a finger rolled or pitched by an angle ``a`` off the normal puts
-the contact ``r (1 - cos a)`` too far out along the normal (0.4 mm for a 7 mm pad at 20
-degrees, 2 mm at 45) and ``r sin a`` along the surface, which moves the point within the
-surface and costs the map nothing.
+the way the pad faces. The surface normal is not measured, and a finger rolled or pitched
+by an angle ``a`` off the normal would put the contact ``r (1 - cos a)`` too far out along
+the normal (0.4 mm for a 7 mm pad at 20 degrees, 2 mm at 45) and ``r sin a`` along the
+surface. So the registrar uses ``u`` only where the pads have not yet traced the surface
+around a point: elsewhere the direction is the normal of the sheet of pad centres before
+it (pad_normals.py).
 
 The parameter is a flat list (ROS 2 parameters have no nested lists): ``x, y, z`` per finger
 in the order of ``finger_names``, or one ``x, y, z`` for every finger.
@@ -94,19 +95,28 @@ class TipOffsets:
         """The flat parameter value."""
         return [float(v) for v in self.offsets.ravel()]
 
-    def contacts(self, positions: Points, quaternions: ArrayLike, fingers: StationIds
-                 ) -> tuple[Points, Bools]:
-        """The contact points (the pad centre, one pad radius towards where it faces) of
-        sensor poses (N, 3) + (N, 4) of ``fingers`` (N,), and which rows are valid: a finger
-        beyond the table, or a non-finite or zero quaternion, cannot be moved to its pad
-        (its row is returned unchanged and flagged False)."""
+    def pads(self, positions: Points, quaternions: ArrayLike, fingers: StationIds
+             ) -> tuple[Points, Points, Bools]:
+        """The pad centres and the unit directions the pads face (both (N, 3), the frame of
+        ``positions``) of sensor poses (N, 3) + (N, 4) of ``fingers`` (N,), and which rows
+        are valid: a finger beyond the table, or a non-finite or zero quaternion, cannot be
+        moved to its pad (its row is returned unchanged, facing zero, flagged False)."""
         q = np.asarray(quaternions, dtype=float).reshape(-1, 4)
         known = (fingers >= 0) & (fingers < len(self.offsets))
         norms = np.linalg.norm(q, axis=1)
         valid = known & np.isfinite(norms) & (norms > 1e-9)
-        pads = np.array(positions, dtype=float, copy=True)
+        centres = np.array(positions, dtype=float, copy=True)
+        facing = np.zeros_like(centres)
         if valid.any():
             mine = fingers[valid]
-            shift = self.offsets[mine] + self.pad_radius * self.facing[mine]
-            pads[valid] += rotate_vectors(q[valid], shift)
-        return pads, valid
+            centres[valid] += rotate_vectors(q[valid], self.offsets[mine])
+            facing[valid] = rotate_vectors(q[valid], self.facing[mine])
+        return centres, facing, valid
+
+    def contacts(self, positions: Points, quaternions: ArrayLike, fingers: StationIds
+                 ) -> tuple[Points, Bools]:
+        """The contact points by the finger's frame alone (the pad centre, one pad radius
+        the way the pad faces) and which rows are valid (see :meth:`pads`). The registrar
+        refines the direction with the surface the pads have traced (pad_normals.py)."""
+        centres, facing, valid = self.pads(positions, quaternions, fingers)
+        return centres + self.pad_radius * facing, valid

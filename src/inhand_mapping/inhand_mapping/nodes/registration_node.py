@@ -169,6 +169,8 @@ class RegistrationNode(Node):
             f'{stats.pending} pending; {stats.object_poses} object poses, '
             f'{stats.object_out_of_order} out of order, {stats.object_invalid} invalid; '
             f'{stats.restarts} new stream(s) after the time went back')
+        if self.registrar.pad_normals is not None:
+            self.get_logger().info(self.registrar.pad_normals.summary())
 
 
 def main(args=None) -> int:

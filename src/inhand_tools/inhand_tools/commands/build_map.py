@@ -127,6 +127,8 @@ def main(argv=None) -> int:
           f'{stats.received} fingertip positions; dropped {stats.dropped_gap} (object pose '
           f'gap), {stats.dropped_before_object} (before the first object pose), '
           f'{stats.dropped_invalid} (invalid)')
+    if registrar.pad_normals is not None:
+        print(f'  {registrar.pad_normals.summary()}')
     print(f'  map: {grid.counts.integrated} points integrated, {grid.counts.outside} outside '
           f'the workspace, {grid.counts.invalid} invalid; {len(touched)} cells touched, '
           f'{len(occupied)} above {threshold:g}')
