@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|validation|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|validation|fingers|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -29,6 +29,10 @@
 #                      generator's hands and meshes; a check, never tuned on) beside each
 #                      session's one-touch oracle (test/benchmarks/bench_validation.py:
 #                      --sessions, --set NAME=VALUE, --jobs, --keep DIR)
+#   fingers            real fingers: pivot calibration accuracy (10-60 degrees), the cat mapped
+#                      with sensors on the nail (point fingertips / raw / offset only /
+#                      calibrated, a wrong offset) and the finger rolling 0-30 degrees
+#                      (test/benchmarks/bench_fingers.py: --quick, --keep DIR)
 #   latency            live-view latency: poses published at 240 Hz x 4 in real time ->
 #                      the cell in occupancy/updates, p50/p95 (test/benchmarks/
 #                      bench_live_latency.py: --duration S, --seed N)
@@ -58,11 +62,12 @@ declare -A BENCHMARKS=(
   [texture]=bench_texture.py
   [quality]=bench_quality.py
   [validation]=bench_validation.py
+  [fingers]=bench_fingers.py
   [latency]=bench_live_latency.py
   [fuzz]=fuzz.py
   [soak]=soak.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags texture quality validation latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags texture quality validation fingers latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

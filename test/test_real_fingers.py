@@ -10,9 +10,11 @@ point fingertips.
 from __future__ import annotations
 
 import math
+import os
 import re
 import subprocess
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -25,7 +27,11 @@ from inhand_mapping.pivot_calibration import pivot_window, solve_pivot
 from inhand_mapping.registration import Registrar
 from inhand_mapping.tip_offsets import TipOffsets
 from inhand_sim.pivot import PivotSettings, simulate_pivot
-from ros_helpers import WORKSPACE, executable_path
+from inhand_sim.session import write_bag
+from inhand_tools.launching import driver_command
+from polhemus_liberty.emulator import LibertyEmulator
+from polhemus_liberty.motion import load_pose_bag
+from ros_helpers import WORKSPACE, executable_path, running
 
 QUARTER_TURN_Z = euler_zyx_to_quaternion(math.pi / 2, 0.0, 0.0)   # x -> y
 
@@ -172,10 +178,17 @@ def test_calibrate_fingertips_writes_what_build_map_reads(tmp_path):
                 '-10', '--seconds', '6']
     subprocess.run(simulate, check=True, capture_output=True, timeout=120)
     output = tmp_path / 'fingers.yaml'
+    figure = tmp_path / 'pivot.png'
     done = subprocess.run([executable_path('calibrate_fingertips'), str(bag), '--output',
-                           str(output)], capture_output=True, text=True, timeout=120)
+                           str(output), '--figure', str(figure)], capture_output=True, text=True,
+                          timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.count('residual') == 3
+    # the geometry and one panel per finger, side by side
+    picture = cv2.imread(str(figure))
+    assert picture is not None and picture.shape[1] == 4 * 420
+    panels = picture[60:440].reshape(380, 4, 420, 3)
+    assert all((panel < 200).any(axis=2).mean() > 0.005 for panel in panels.transpose(1, 0, 2, 3))
     registration, _ = load_parameters([str(WORKSPACE / 'config' / 'mapping_static.yaml'),
                                        str(output)], {})
     offsets = np.array(registration.tip_offsets).reshape(3, 3)
@@ -230,3 +243,32 @@ def test_a_session_with_real_fingers_maps_like_point_fingertips_once_calibrated(
     for key in ('fscore_at_5mm', 'precision_at_5mm'):
         assert scores['calibrated'][key] >= scores['ideal'][key] - 0.02, (key, scores)
     assert abs(scores['calibrated']['normal_offset_mm']) < 1.5
+
+
+@pytest.mark.dds
+def test_live_calibration_of_a_pivot_played_by_the_emulator(tmp_path):
+    """A pivot session through the whole live chain: the emulated Liberty plays it on a
+    pty, the driver publishes it, calibrate_fingertips --live reads the topics."""
+    truth = ((0.003, 0.0, -0.010), (0.002, 0.001, -0.011), (0.0, -0.002, -0.009))
+    settings = PivotSettings(tip_offsets=truth, tilt_deg=40.0, seconds=3.0, seed=2)
+    session = simulate_pivot(settings)
+    bag = tmp_path / 'pivot'
+    write_bag(session, bag)
+    motion = load_pose_bag(bag, {'thumb': 1, 'index': 2, 'middle': 3})
+    # one whole loop of the session and one finger's turn more: every finger's pivot is
+    # heard whole at least once, wherever the loop was when listening began
+    listen = motion.duration + settings.seconds + 2 * settings.approach + 1.0
+    output = tmp_path / 'fingers.yaml'
+    port = f'/tmp/liberty-pivot-{os.getpid()}'
+    with LibertyEmulator(motion, port, stations=(1, 2, 3)) as emulator, \
+            running(driver_command(str(WORKSPACE / 'config' / 'liberty_emulator.yaml'),
+                                   emulator.port, 'stations:=[1, 2, 3]',
+                                   "station_names:=['thumb', 'index', 'middle']")) as driver:
+        done = subprocess.run([executable_path('calibrate_fingertips'), '--live', f'{listen:.1f}',
+                               '--output', str(output)], capture_output=True, text=True,
+                              timeout=listen + 60)
+        assert driver.interrupt() == 0, driver.output()
+    assert done.returncode == 0, done.stdout + done.stderr
+    offsets = np.array(yaml.safe_load(output.read_text())
+                       ['/**/registration_node']['ros__parameters']['tip_offsets']).reshape(3, 3)
+    assert np.abs(offsets - np.array(truth)).max() < 0.0015, offsets

@@ -51,7 +51,9 @@ REGISTRATION_PARAMETERS = (
               'x, y, z for all (from calibrate_fingertips; 0: the sensor is the contact point)',
               minimum=-MAX_TIP_OFFSET, maximum=MAX_TIP_OFFSET, min_length=3),
     ParamSpec('pad_radius', 0.0, 'Radius of the finger pads (m): the contact is this far from '
-              'the pad centre, the way the pad faces (0: the pad centre is the contact point)',
+              'the pad centre, along the normal of the surface the pad centres have traced '
+              '(the way the pad faces where none is traced yet; 0: the pad centre is the '
+              'contact point)',
               minimum=0.0, maximum=MAX_PAD_RADIUS),
     ParamSpec('max_gap', 0.05, 'Longest gap (s) between two object poses to interpolate '
               'across; fingertips in longer gaps are dropped, never extrapolated',

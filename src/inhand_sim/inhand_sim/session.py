@@ -609,13 +609,24 @@ class _StereoConnections:
 
 def write_session(session: SimulatedSession, output, force: bool = False,
                   progress: Callable[[float], None] | None = None) -> tuple[Path, Path]:
-    """Write ``output/`` (the bag) and ``output.truth.npz`` atomically: both are written in
-    a temporary folder beside them and renamed into place (the sidecar first, then the
-    bag). Refuses to replace existing ones unless ``force``."""
+    """Write ``output/`` (the bag) and ``output.truth.npz`` atomically (see
+    :func:`write_recording`). Refuses to replace existing ones unless ``force``."""
+    output = Path(output)
+    return write_recording(session, output, truth_path(output),
+                           lambda path: write_truth(path, session.truth), force, progress)
+
+
+def write_recording(session: PoseRecording, output, sidecar: Path,
+                    write_sidecar: Callable[[Path], Path], force: bool = False,
+                    progress: Callable[[float], None] | None = None) -> tuple[Path, Path]:
+    """Write the bag ``output/`` and its truth ``sidecar`` (``write_sidecar(path)`` writes it
+    and returns the path) atomically: both are written in a temporary folder beside them
+    and renamed into place (the sidecar first, then the bag), so an interrupted run leaves
+    the old pair or the new one, never half of a bag. Refuses to replace existing ones
+    unless ``force``."""
     import shutil
     import tempfile
     output = Path(output)
-    sidecar = truth_path(output)
     existing = [p for p in (output, sidecar) if p.exists() or p.is_symlink()]
     if existing and not force:
         raise FileExistsError(f'{", ".join(map(str, existing))} exists already (use --force to replace)')
@@ -623,7 +634,7 @@ def write_session(session: SimulatedSession, output, force: bool = False,
     scratch = Path(tempfile.mkdtemp(prefix=f'.{output.name}.', dir=output.parent))
     try:
         bag_tmp = write_bag(session, scratch / output.name, progress)
-        truth_tmp = write_truth(scratch / sidecar.name, session.truth)
+        truth_tmp = write_sidecar(scratch / sidecar.name)
         for target in existing:
             if target.is_dir() and not target.is_symlink():
                 shutil.rmtree(target)

@@ -32,7 +32,7 @@ import numpy as np
 
 __all__ = ['BACKGROUND', 'OBLIQUE', 'SIDE', 'TOP', 'UP_AXES', 'Camera', 'View', 'ViewBox',
            'annotate', 'bounds_of', 'box_of', 'default_margin', 'grid_figure', 'hstack',
-           'image_panel', 'key_legend', 'outside_note', 'probability_colours',
+           'image_panel', 'key_legend', 'label', 'outside_note', 'probability_colours',
            'probability_legend', 'render_cells', 'render_cells_and_points', 'render_points',
            'robust_box', 'titled']
 
@@ -430,6 +430,11 @@ def _splat_points(image: np.ndarray, best: np.ndarray, camera: Camera, points, c
             nearer = source > target
             target[nearer] = source[nearer]
             image[ys, xs][nearer] = centre_colour[ys_src, xs_src][nearer]
+
+
+def label(image, text, origin, scale=0.5, colour=TEXT, thickness=1) -> None:
+    """Text at ``origin`` (pixels, the baseline's left end), anti-aliased."""
+    _text(image, text, origin, scale, colour, thickness)
 
 
 def _text(image, text, origin, scale=0.5, colour=TEXT, thickness=1) -> None:

@@ -14,18 +14,15 @@ sensor's frame) once for every finger or once per finger (thumb, index, middle);
 
 from __future__ import annotations
 
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from inhand_common.atomic_file import atomic_write
 from inhand_common.cli_types import command_parser, number
 from inhand_sim.exploration import FINGERS
-from inhand_sim.pivot import PivotSettings, simulate_pivot
-from inhand_sim.session import write_bag
+from inhand_sim.pivot import PivotSession, PivotSettings, simulate_pivot
+from inhand_sim.session import write_recording
 
 PROG = 'simulate_pivot'
 EXIT_BAD_ARGUMENTS = 2
@@ -34,6 +31,16 @@ EXIT_BAD_ARGUMENTS = 2
 def pivot_truth_path(bag: Path) -> Path:
     """Where the truth of the pivot session ``bag`` is written."""
     return bag.with_name(bag.name + '.pivot.yaml')
+
+
+def _write_truth(path: Path, bag_name: str, session: PivotSession) -> Path:
+    """The pivot session's truth: each finger's offset and pivot point, as YAML."""
+    lines = [f'# the truth of the pivot session {bag_name} ({PROG})', 'fingers:']
+    for name, offset, pivot in zip(FINGERS, session.offsets, session.pivots):
+        lines += [f'  {name}:', f'    tip_offset: [{", ".join(f"{v:.6f}" for v in offset)}]',
+                  f'    pivot: [{", ".join(f"{v:.6f}" for v in pivot)}]']
+    path.write_text('\n'.join(lines) + '\n')
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -57,30 +64,15 @@ def main(argv: list[str] | None = None) -> int:
         if len(offsets) != len(FINGERS):
             raise ValueError(f'--tip-offset: give it once or {len(FINGERS)} times '
                              f'({", ".join(FINGERS)}), not {len(offsets)}')
-        if (args.output.exists() or truth.exists()) and not args.force:
-            raise ValueError(f'{args.output} exists already (use --force to replace)')
         session = simulate_pivot(PivotSettings(
             tip_offsets=tuple(map(tuple, offsets)), tilt_deg=args.tilt_deg,
             twist_deg=args.twist_deg, seconds=args.seconds, rate=args.rate,
             noise_mm=args.noise_mm, seed=args.seed))
-    except ValueError as error:
+        write_recording(session, args.output, truth,
+                        lambda path: _write_truth(path, args.output.name, session), args.force)
+    except (ValueError, FileExistsError) as error:
         print(f'{PROG}: {error}', file=sys.stderr)
         return EXIT_BAD_ARGUMENTS
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    scratch = Path(tempfile.mkdtemp(prefix=f'.{args.output.name}.', dir=args.output.parent))
-    try:
-        bag = write_bag(session, scratch / args.output.name)
-        if args.output.exists():
-            shutil.rmtree(args.output)
-        bag.replace(args.output)
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-    lines = [f'# the truth of the pivot session {args.output.name} ({PROG})', 'fingers:']
-    for name, offset, pivot in zip(FINGERS, session.offsets, session.pivots):
-        lines += [f'  {name}:', f'    tip_offset: [{", ".join(f"{v:.6f}" for v in offset)}]',
-                  f'    pivot: [{", ".join(f"{v:.6f}" for v in pivot)}]']
-    with atomic_write(truth) as stream:
-        stream.write(('\n'.join(lines) + '\n').encode('utf-8'))
     print(f'wrote {args.output} and {truth}')
     return 0
 

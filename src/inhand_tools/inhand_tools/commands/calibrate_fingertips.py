@@ -3,7 +3,7 @@
     calibrate_fingertips BAG --output FILE [--config FILE ...]
     calibrate_fingertips --live SECONDS --output FILE [--config FILE ...] [--ros-args ...]
                          [--min-rotation-deg 15] [--max-residual-mm 3]
-                         [--max-uncertainty-mm 1]
+                         [--max-uncertainty-mm 1] [--figure PNG]
 
 On the bench (README, "Real fingers"): rest each finger's pad in a small dimple (or on one
 fixed point of the table) and tilt the finger 30-60 degrees about it in several directions
@@ -29,6 +29,7 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
+from typing import TypeAlias
 
 import numpy as np
 
@@ -40,26 +41,29 @@ from inhand_mapping.bag_mapping import BagMessages
 from inhand_mapping.mapping_config import load_parameters
 from inhand_mapping.pivot_calibration import PivotLimits, PivotResult, pivot_window, solve_pivot
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
+from inhand_tools.pivot_figure import write_pivot_figure
 
 PROG = 'calibrate_fingertips'
 EXIT_BAD_INPUT = 2
 
 
-def _calibrate(raw_by_finger: dict[str, list[bytes]], limits: PivotLimits
-               ) -> dict[str, PivotResult]:
-    """Each finger's pivot from its raw PoseStamped messages."""
-    results = {}
+Pivot: TypeAlias = tuple[np.ndarray, np.ndarray, PivotResult]
+
+
+def _calibrate(raw_by_finger: dict[str, list[bytes]], limits: PivotLimits) -> dict[str, Pivot]:
+    """Each finger's pivot from its raw PoseStamped messages: the sensor positions and
+    quaternions of the stretch where it pivots, and the solution."""
+    pivots = {}
     for name, raw in raw_by_finger.items():
-        if not raw:
-            results[name] = solve_pivot(np.empty((0, 3)), np.empty((0, 4)), limits)
-            continue
-        stamps, _, poses = decode_pose_stamped_many(raw)
-        times = stamp_seconds(stamps)
-        order = np.argsort(times, kind='stable')
-        times, poses = times[order], poses[order]
-        window = pivot_window(times, poses[:, 3:])
-        results[name] = solve_pivot(poses[window, :3], poses[window, 3:], limits)
-    return results
+        poses = np.empty((0, 7))
+        if raw:
+            stamps, _, poses = decode_pose_stamped_many(raw)
+            times = stamp_seconds(stamps)
+            order = np.argsort(times, kind='stable')
+            times, poses = times[order], poses[order]
+            poses = poses[pivot_window(times, poses[:, 3:])]
+        pivots[name] = (poses[:, :3], poses[:, 3:], solve_pivot(poses[:, :3], poses[:, 3:], limits))
+    return pivots
 
 
 def _read_bag(bag: Path, names: tuple[str, ...]) -> dict[str, list[bytes]]:
@@ -131,6 +135,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--min-rotation-deg', type=number(above=0.0), default=15.0)
     parser.add_argument('--max-residual-mm', type=number(above=0.0), default=3.0)
     parser.add_argument('--max-uncertainty-mm', type=number(above=0.0), default=1.0)
+    parser.add_argument('--figure', type=Path, metavar='PNG',
+                        help='also draw the geometry and each finger\'s pivot (written even '
+                             'when a finger is refused: it shows why)')
     args = parser.parse_args(argv)
     if (args.bag is None) == (args.live is None):
         parser.error('give a BAG or --live SECONDS (one of the two)')
@@ -148,10 +155,14 @@ def main(argv: list[str] | None = None) -> int:
         else:
             raw = _listen(args.live, names, ros_args)
             source = f'{args.live:g} s of live poses'
-        results = _calibrate(raw, limits)
+        pivots = _calibrate(raw, limits)
+        if args.figure is not None:
+            write_pivot_figure(args.figure, pivots, source)
+            print(f'wrote {args.figure}')
     except (ParameterError, ValueError, OSError) as error:
         print(f'{PROG}: {error}', file=sys.stderr)
         return EXIT_BAD_INPUT
+    results = {name: pivot[2] for name, pivot in pivots.items()}
     for name, result in results.items():
         print(result.summary(name), file=sys.stdout if result.accepted else sys.stderr)
     refused = [name for name, result in results.items() if not result.accepted]
