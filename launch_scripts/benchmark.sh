@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|validation|fingers|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|validation|fingers|startup|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -33,6 +33,9 @@
 #                      with sensors on the nail (point fingertips / raw / offset only /
 #                      calibrated, a wrong offset) and the finger rolling 0-30 degrees
 #                      (test/benchmarks/bench_fingers.py: --quick, --keep DIR)
+#   startup            first start: build_map, occupancy_node and stereo_node with an empty
+#                      numba cache and after compile_kernels (what bootstrap.sh runs)
+#                      (test/benchmarks/bench_startup.py: --fresh-clone)
 #   latency            live-view latency: poses published at 240 Hz x 4 in real time ->
 #                      the cell in occupancy/updates, p50/p95 (test/benchmarks/
 #                      bench_live_latency.py: --duration S, --seed N)
@@ -63,11 +66,12 @@ declare -A BENCHMARKS=(
   [quality]=bench_quality.py
   [validation]=bench_validation.py
   [fingers]=bench_fingers.py
+  [startup]=bench_startup.py
   [latency]=bench_live_latency.py
   [fuzz]=fuzz.py
   [soak]=soak.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags texture quality validation fingers latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags texture quality validation fingers startup latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -71,5 +71,11 @@ say "installing workspace packages: $(for p in "${PACKAGES[@]}"; do printf '%s '
 EDITABLE=()
 for pkg in "${PACKAGES[@]}"; do EDITABLE+=(-e "$pkg"); done
 "${PIP[@]}" install --no-deps --no-build-isolation --use-pep517 "${EDITABLE[@]}" 2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
+# numba compiles a kernel on its first call: done here, once, so that the first build_map
+# or node after the set-up starts as fast as any later one (compile_kernels' doc).
+say "compiling the numba kernels into their cache (about 30 s, once)"
+if ! "$VENV/bin/compile_kernels" --quiet; then
+  say "warning: compile_kernels failed; the first run of each program will compile instead"
+fi
 echo "$WANT" > "$STAMP"
 say "ready: $VENV"

@@ -21,6 +21,7 @@ setup(
         'console_scripts': [
             'bag_replay = inhand_tools.commands.bag_replay:main',
             'build_map = inhand_tools.commands.build_map:main',
+            'compile_kernels = inhand_tools.commands.compile_kernels:main',
             'calibrate_fingertips = inhand_tools.commands.calibrate_fingertips:main',
             'calibrate_vision_model = inhand_tools.commands.calibrate_vision_model:main',
             'bag_record = inhand_tools.commands.bag_record:main',

@@ -72,7 +72,7 @@ from inhand_mapping.occupancy import GridSpec
 from inhand_stereo.vision_kernels import select_cells
 
 __all__ = ['NOISE_MODELS', 'UPDATES', 'VisionMap', 'VisionModel', 'VisionObservation',
-           'depth_spread', 'observe_grid']
+           'depth_spread', 'observe_grid', 'warm_up']
 
 NoiseModel: TypeAlias = Literal['linear', 'stereo']
 Update: TypeAlias = Literal['mass', 'mean']
@@ -250,11 +250,13 @@ def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray
     surface[..., 0] = depth
     if spread is not None:
         surface[..., 1] = spread
+    # The small inputs as fresh (writable) copies: a read-only one (a camera's P from a
+    # message buffer) would be another type to numba, and another compile.
     cells, updates, delta, measured_range = select_cells(
         np.ascontiguousarray(centres, dtype=np.float64),
-        np.ascontiguousarray(matrix, dtype=np.float64),
-        np.ascontiguousarray(offset, dtype=np.float64).reshape(3),
-        np.ascontiguousarray(P, dtype=np.float64).reshape(3, 4), surface,
+        np.array(matrix, dtype=np.float64),
+        np.array(offset, dtype=np.float64).reshape(3),
+        np.array(P, dtype=np.float64).reshape(3, 4), surface,
         np.empty((0, 0), dtype=bool) if object_mask is None else
         np.ascontiguousarray(object_mask, dtype=bool),
         float(resolution), float(model.band_behind(resolution)), -model.epsilon / 2.0,
@@ -312,3 +314,16 @@ class VisionMap:
         """Cells any exposure updated."""
         observed: Bools = self.log_odds != 0.0
         return observed
+
+
+def warm_up(model: VisionModel, resolution: float) -> None:
+    """Run the compiled kernel of one exposure once: a 4 x 4 depth image of a scratch 8^3
+    grid. numba loads the kernel from its cache (or compiles it) on its first call; a node
+    pays that at start rather than on its first pair. The kernel's argument types do not
+    depend on the image's or the grid's size, so this loads the same machine code."""
+    vision = VisionMap(GridSpec(size=8 * resolution, resolution=resolution), model, (0.12, 0.97))
+    depth = np.full((4, 4), 0.3, dtype=np.float32)
+    camera = np.array([[100.0, 0.0, 2.0, 0.0], [0.0, 100.0, 2.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    placed = (np.eye(3), np.array([0.0, 0.0, 0.3]))
+    vision.integrate(depth, camera, placed, np.ones((4, 4), dtype=bool))
+    vision.integrate(depth, camera, placed)

@@ -48,7 +48,7 @@ from inhand_stereo.shot_placement import PlacedShot, ShotPlacer, UnplacedShot
 from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
 from inhand_stereo.stereo_inputs import StereoInputs, StereoPair, shot_from_messages
 from inhand_stereo.stereo_pipeline import StereoPipeline, StereoShot
-from inhand_stereo.vision_model import VisionMap
+from inhand_stereo.vision_model import VisionMap, warm_up
 
 IMAGE_QOS = qos_profile_sensor_data          # best-effort, depth 5
 # A best-effort reader matches every camera driver and bag replay, but Fast DDS never hands it
@@ -72,6 +72,9 @@ class StereoNode(Node):
         self.placer = ShotPlacer(Registrar(config.mode, config.max_gap))
         self.placed: PlacedShot | None = None
         self.vision = VisionMap(config.grid, config.vision, config.clamp)
+        started = time.monotonic()
+        warm_up(config.vision, config.grid.resolution)   # not on the first pair
+        self.get_logger().info(f'kernels ready in {time.monotonic() - started:.2f} s')
         self.cells: np.ndarray | None = None         # the latest occupied cloud's points
         self.counts = {'pairs': 0, 'refused': 0, 'no_object_pose': 0}
         for side in ('left', 'right'):
