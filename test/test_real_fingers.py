@@ -39,16 +39,20 @@ QUARTER_TURN_Z = euler_zyx_to_quaternion(math.pi / 2, 0.0, 0.0)   # x -> y
 def test_the_pad_centre_is_the_offset_turned_with_the_sensor():
     offsets = TipOffsets([[0.01, 0.0, 0.0], [0.0, 0.0, -0.02]])
     sensors = np.array([[0.1, 0.2, 0.3], [0.0, 0.0, 0.0]])
-    contacts, valid = offsets.contacts(sensors, np.stack([QUARTER_TURN_Z] * 2), np.array([0, 1]))
+    centres, _, valid = offsets.pads(sensors, np.stack([QUARTER_TURN_Z] * 2), np.array([0, 1]))
     assert valid.all()
-    np.testing.assert_allclose(contacts, [[0.1, 0.21, 0.3], [0.0, 0.0, -0.02]], atol=1e-12)
+    np.testing.assert_allclose(centres, [[0.1, 0.21, 0.3], [0.0, 0.0, -0.02]], atol=1e-12)
 
 
 def test_the_contact_is_one_pad_radius_further_the_way_the_pad_faces():
-    # facing = the offset's direction; with no offset, the sensor's -z
+    # facing = the offset's direction; with no offset, the sensor's -z (no surface traced
+    # yet, so the registrar goes the way the finger's frame says)
     offsets = TipOffsets([[0.01, 0.0, 0.0], [0.0, 0.0, 0.0]], pad_radius=0.005)
-    contacts, _ = offsets.contacts(np.zeros((2, 3)), np.stack([QUARTER_TURN_Z] * 2),
-                                   np.array([0, 1]))
+    registrar = Registrar('static', tip_offsets=offsets)
+    registrar.add_fingertips([0.0, 0.0], np.zeros((2, 3)), [0, 1],
+                             quaternions=np.stack([QUARTER_TURN_Z] * 2))
+    contacts, _, fingers = registrar.finish()
+    assert fingers.tolist() == [0, 1]
     np.testing.assert_allclose(contacts, [[0.0, 0.015, 0.0], [0.0, 0.0, -0.005]], atol=1e-12)
 
 

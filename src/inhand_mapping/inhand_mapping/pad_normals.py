@@ -105,9 +105,9 @@ class PadNormals:
         cells = np.floor_divide(micrometres, CELL_UM)
         keys = ((cells[:, 0] + _BIAS) * _SPAN + cells[:, 1] + _BIAS) * _SPAN + cells[:, 2] + _BIAS
         moments = _moments(micrometres - cells * CELL_UM)
-        sums = self._history_sums(keys) + self._earlier_in_batch(keys, moments, times)
-        direction = self._directions(sums, facing)
-        self._add(keys, moments)
+        earlier, batch_cells, batch_sums = self._earlier_in_batch(keys, moments, times)
+        direction = self._directions(self._history_sums(keys) + earlier, facing)
+        self._add(batch_cells, batch_sums)
         return centres + radius * direction
 
     def summary(self) -> str:
@@ -136,10 +136,12 @@ class PadNormals:
         return _row_sums(rows, _shifted(self._sums[at], delta), keys.size)
 
     def _earlier_in_batch(self, keys: np.ndarray, moments: np.ndarray, times: Times
-                          ) -> np.ndarray:
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Moments of this batch's centres stamped strictly before each one, in the 27
         cells around it: the batch sorted by (cell, time) with running sums, and each
-        query's cut found by one searchsorted on the cell's rank and the time together."""
+        query's cut found by one searchsorted on the cell's rank and the time together.
+        Also the batch's cells (sorted) and each one's total, from the same running sums,
+        for the table (:meth:`_add`)."""
         order = np.lexsort((times, keys))
         unique, start = np.unique(keys[order], return_index=True)
         rank = np.repeat(np.arange(unique.size), np.diff(np.append(start, keys.size)))
@@ -150,7 +152,9 @@ class PadNormals:
         np.cumsum(moments[order], axis=0, out=running[1:])
         rows, cell, delta = self._gather(keys, unique)
         cut = np.searchsorted(composite, cell * stride + (times[rows] - t0), side='left')
-        return _row_sums(rows, _shifted(running[cut] - running[start[cell]], delta), keys.size)
+        earlier = _row_sums(rows, _shifted(running[cut] - running[start[cell]], delta), keys.size)
+        totals = running[np.append(start[1:], keys.size)] - running[start]
+        return earlier, unique, totals
 
     def _directions(self, sums: np.ndarray, facing: Points) -> Points:
         """The fitted normal (turned to the facing side) where the fit is trusted, else the
@@ -176,12 +180,10 @@ class PadNormals:
         self.from_finger += facing.shape[0] - usable.size
         return direction
 
-    def _add(self, keys: np.ndarray, moments: np.ndarray) -> None:
-        """Fold a batch's centres into the cell table (kept sorted)."""
-        unique, inverse = np.unique(keys, return_inverse=True)
-        merged = np.union1d(self._keys, unique)
-        sums = np.zeros((merged.size, _MOMENTS), dtype=np.int64)
-        sums[np.searchsorted(merged, self._keys)] = self._sums
-        order = np.argsort(inverse, kind='stable')
-        sums[np.searchsorted(merged, unique)] += _row_sums(inverse[order], moments[order], unique.size)
-        self._keys, self._sums = merged, sums
+    def _add(self, cells: np.ndarray, sums: np.ndarray) -> None:
+        """Fold a batch's cells (sorted keys) and their moments into the table (kept sorted)."""
+        merged = np.union1d(self._keys, cells)
+        table = np.zeros((merged.size, _MOMENTS), dtype=np.int64)
+        table[np.searchsorted(merged, self._keys)] = self._sums
+        table[np.searchsorted(merged, cells)] += sums
+        self._keys, self._sums = merged, table

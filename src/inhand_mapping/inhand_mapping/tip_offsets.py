@@ -112,11 +112,3 @@ class TipOffsets:
             centres[valid] += rotate_vectors(q[valid], self.offsets[mine])
             facing[valid] = rotate_vectors(q[valid], self.facing[mine])
         return centres, facing, valid
-
-    def contacts(self, positions: Points, quaternions: ArrayLike, fingers: StationIds
-                 ) -> tuple[Points, Bools]:
-        """The contact points by the finger's frame alone (the pad centre, one pad radius
-        the way the pad faces) and which rows are valid (see :meth:`pads`). The registrar
-        refines the direction with the surface the pads have traced (pad_normals.py)."""
-        centres, facing, valid = self.pads(positions, quaternions, fingers)
-        return centres + self.pad_radius * facing, valid
