@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|texture|quality|validation|fingers|startup|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|vision|texture|quality|validation|fingers|startup|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -16,6 +16,11 @@
 #                      --quick, --runs N, --no-accuracy, --no-timing)
 #   stereo-bags        disparity of the bundled bags' stereo pairs against their truth
 #                      (test/benchmarks/bench_stereo_bags.py: no options)
+#   vision             one pair's vision update (segmentation, integration) on each bundled
+#                      bag's pair, the integration against Open3D's UniformTSDFVolume on one
+#                      core (installs open3d-cpu into .venv-open3d on first use), against
+#                      OctoMap, and fusion (test/benchmarks/bench_vision.py: --runs N,
+#                      --no-open3d)
 #   texture            texture of the occupied cells: time and visibility rules
 #                      (test/benchmarks/bench_texture.py: --quick, --runs N)
 #   quality            the touch map on simulated sessions: objects x stroke speeds x rates x
@@ -62,6 +67,7 @@ declare -A BENCHMARKS=(
   [replay]=bench_replay.py
   [stereo]=bench_stereo.py
   [stereo-bags]=bench_stereo_bags.py
+  [vision]=bench_vision.py
   [texture]=bench_texture.py
   [quality]=bench_quality.py
   [validation]=bench_validation.py
@@ -71,7 +77,7 @@ declare -A BENCHMARKS=(
   [fuzz]=fuzz.py
   [soak]=soak.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags texture quality validation fingers startup latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags vision texture quality validation fingers startup latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -19,6 +19,8 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from inhand_common.blas_threads import single_threaded_blas
+from inhand_common.dds_profile import shipped_profile
+from inhand_common.heap_reuse import reuse_freed_memory
 from inhand_common.parameters import ParameterError, read_parameter_file
 from inhand_common.stop_flag import StopFlag
 
@@ -49,6 +51,7 @@ def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | Non
     ``name`` prefixes the message printed when parameters are refused.
     """
     single_threaded_blas()
+    reuse_freed_memory()
     argv = list(args) if args is not None else list(sys.argv)
     try:
         for path in _parameter_files(argv):    # rcl would say it in a 60-line traceback
@@ -56,6 +59,12 @@ def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | Non
     except ParameterError as error:
         print(f'{name}: {error.problems[0]}', file=sys.stderr)
         return EXIT_BAD_PARAMETERS
+    with shipped_profile():     # large images arrive, also best effort (dds_profile.py)
+        return _spin(name, make_node, argv, executor_factory)
+
+
+def _spin(name: str, make_node: Callable[[], Node], argv: list[str],
+          executor_factory: Callable[[], object]) -> int:
     stop = StopFlag()   # not a threading.Event (stop_flag.py)
     previous = {sig: signal.signal(sig, stop.set)
                 for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -23,9 +23,10 @@ from inhand_stereo.scene_segmentation import (
     SegmentationConfig,
     segment_object,
 )
+from inhand_stereo.segmentation_kernels import back_project
 from inhand_stereo.stereo_pipeline import StereoShot, pose_vector
 from inhand_stereo.texture import CellTexture, map_to_rectified
-from inhand_stereo.vision_model import VisionMap, VisionObservation
+from inhand_stereo.vision_model import VisionMap
 
 __all__ = ['PlacedShot', 'ShotPlacer', 'UnplacedShot']
 
@@ -58,22 +59,20 @@ class PlacedShot(NamedTuple):
     def pixel_points_in_map(self, camera_pose: ArrayLike) -> NDArray[np.float64]:
         """(H * W, 3) the measured point of every pixel of the rectified left image in the
         map frame, row-major; NaN where there is no depth."""
-        depth = self.shot.depth.astype(np.float64)
-        height, width = depth.shape
-        P = self.shot.left_camera.P
-        image = np.empty((height, width, 3))
-        image[..., 0] = ((np.arange(width) - P[0, 2]) / P[0, 0])[None, :] * depth
-        image[..., 1] = ((np.arange(height) - P[1, 2]) / P[1, 1])[:, None] * depth
-        image[..., 2] = depth
+        depth = np.ascontiguousarray(self.shot.depth, dtype=np.float32)
         matrix, offset = self.map_to_camera(camera_pose)
-        points: NDArray[np.float64] = (image.reshape(-1, 3) - offset) @ matrix   # M: a rotation
+        points = np.empty((depth.size, 3))
+        back_project(depth, np.array(self.shot.left_camera.P, dtype=np.float64).reshape(3, 4),
+                     np.array(matrix, dtype=np.float64), np.array(offset, dtype=np.float64).reshape(3),
+                     points)
         return points
 
     def integrate_into(self, vision: VisionMap, camera_pose: ArrayLike,
                        config: SegmentationConfig = DEFAULT_SEGMENTATION
-                       ) -> tuple[VisionObservation, Segmentation]:
+                       ) -> tuple[int, Segmentation]:
         """Add this shot to the vision local map, once: its object's pixels with the whole
-        model, the others (table, backdrop: scene_segmentation.py) as free space only."""
+        model, the others (table, backdrop: scene_segmentation.py) as free space only.
+        Returns how many cells it updated, and the segmentation."""
         segmentation = segment_object(self.pixel_points_in_map(camera_pose), vision.spec,
                                       config)
         depth = self.shot.depth

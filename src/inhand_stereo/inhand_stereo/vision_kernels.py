@@ -1,11 +1,17 @@
-"""Compiled inner loop of the vision map (numba), used only by vision_model.py.
+"""Compiled loops of the vision map (numba), used only by vision_model.py.
 
-:func:`select_cells` is :func:`~inhand_stereo.vision_model.observe_grid`'s geometry in one
+:func:`expose_grid` is :func:`~inhand_stereo.vision_model.observe_grid`'s geometry in one
 pass over the grid's cells: each centre into the rectified left camera, the nearest
 pixel's depth (and object mask and spread), the ranges along the ray through the centre,
 whether the cell is updated (module doc of vision_model.py) and its update by the model:
 the same arithmetic as ``VisionModel.log_odds`` (numpy, the reference the tests compare
-with), one cell at a time without temporaries.
+with), one cell at a time without temporaries; optionally applied to the map in the same
+pass. :func:`depth_surface` measures the depth's local spread for it
+(``vision_model.depth_spread`` is the reference).
+
+Why compiled and in one pass: an exposure touches every cell of the grid (343,000 at
+70^3); as numpy expressions it made a dozen full-grid temporaries and ran at a quarter of
+Open3D's ``UniformTSDFVolume.integrate`` on the same image and grid.
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ['select_cells']
+__all__ = ['depth_surface', 'expose_grid']
 
 MIN_DEPTH = 1e-3
 _Function = TypeVar('_Function', bound=Callable[..., object])
@@ -69,60 +75,218 @@ def model_log_odds(delta: float, measured_range: float, spread: float, model: Fl
     return math.log(p / (1.0 - p))
 
 
+# A confident free-space belief (mu = 0, sigma < 1/18: see model_log_odds) is most of the
+# grid in front of a surface. exp(x) >= 1 + x + x^2/2 + x^3/6 for x >= 0 tells most of those
+# cells without the exponential, and reciprocals save the divisions; the margin covers the
+# rounding of both sides, so the answer is the one model_log_odds would give, to the bit.
+_MARGIN = 1e-9
+_CONFIDENT = (0.5 / 9.0) * (1.0 - _MARGIN)
+_SIXTH = 1.0 / 6.0       # a product, not a division (the compiler keeps a division as it is)
+
+
+@_inlined
+def surely_confident_free(far_side: float, sigma_s: float, model: Floats, inv_epsilon: float,
+                          inv_tau: float) -> bool:
+    """True only if ``model_log_odds(far_side, ...)`` takes its confident branch at mu = 0
+    (it may still when this is False)."""
+    epsilon = model[0]
+    if not far_side < -0.5 * epsilon * (1.0 + _MARGIN):    # then 0.5 + far_side / epsilon < 0
+        return False
+    x = (-far_side - 0.5 * epsilon) * inv_tau * (1.0 - _MARGIN)   # outside / tau, from below
+    bound = 1.0 + x * (1.0 + x * (0.5 + x * _SIXTH))
+    confident: bool = sigma_s * inv_epsilon < _CONFIDENT * bound
+    return confident
+
+
 @_compiled
-def select_cells(centres: Floats, matrix: Floats, offset: Floats, P: Floats,
-                 surface: NDArray[np.float32], mask: NDArray[np.bool_], resolution: float,
-                 band_behind: float, free_limit: float, model: Floats
-                 ) -> tuple[NDArray[np.intp], Floats, Floats, Floats]:
-    """(cells, log-odds update, delta to the far side, measured range) of the cells an
-    exposure updates. ``surface`` (H, W, 2): each pixel's depth and spread side by side,
-    so the one cache line a cell's pixel costs brings both (the pixels a grid's cells
-    land on are scattered over the image); ``mask`` of shape (0, 0) when not given."""
-    count = centres.shape[0]
+def expose_grid(n: int, origin: Floats, resolution: float, matrix: Floats, offset: Floats,
+                P: Floats, surface: NDArray[np.float32], band_behind: float, free_limit: float,
+                model: Floats, log_odds: Floats,
+                clamp_low: float, clamp_high: float, cells: NDArray[np.intp], updates: Floats,
+                deltas: Floats, ranges: Floats) -> int:
+    """The cells an exposure updates on the n^3 grid at ``origin`` (cells of edge
+    ``resolution``, flat index (i n + j) n + k): their index, log-odds update, delta to the
+    far side and measured range, written to the front of ``cells``, ``updates``,
+    ``deltas`` and ``ranges`` (each n^3 long, or empty: not wanted). Returns how many.
+    ``surface`` (H, W, 2): each pixel's depth and spread side by side (:func:`depth_surface`),
+    so the one cache line a cell's pixel costs brings both and the object mask. ``log_odds``
+    (n^3,), when not empty, gets the updates added and clamped to [clamp_low, clamp_high]
+    in the same pass.
+
+    The centres are ``GridSpec.cell_centres``' arithmetic and the camera coordinates the
+    same sums in the same order (each axis' terms computed once per index), so the result
+    is the numpy reference's to the bit."""
     height, width = surface.shape[0], surface.shape[1]
-    has_mask = mask.shape[0] > 0
-    cells = np.empty(count, dtype=np.intp)
-    deltas = np.empty(count)
-    ranges = np.empty(count)
-    updates = np.empty(count)
-    kept = 0
+    apply = log_odds.shape[0] > 0
+    want_cells, want_updates = cells.shape[0] > 0, updates.shape[0] > 0
+    want_deltas, want_ranges = deltas.shape[0] > 0, ranges.shape[0] > 0
+    lowest = model[8]
+    inv_epsilon, inv_tau = 1.0 / model[0], 1.0 / model[1]
     half = resolution / 2.0
-    for k in range(count):
-        x = matrix[0, 0] * centres[k, 0] + matrix[0, 1] * centres[k, 1] + \
-            matrix[0, 2] * centres[k, 2] + offset[0]
-        y = matrix[1, 0] * centres[k, 0] + matrix[1, 1] * centres[k, 1] + \
-            matrix[1, 2] * centres[k, 2] + offset[1]
-        z = matrix[2, 0] * centres[k, 0] + matrix[2, 1] * centres[k, 1] + \
-            matrix[2, 2] * centres[k, 2] + offset[2]
-        w = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
-        if not (z > MIN_DEPTH and w > 0.0):
+    noise_squared = model[4] > 0.5
+    # terms[r, a, index]: matrix[r, a] times the centre's coordinate a at that index
+    terms = np.empty((3, 3, n))
+    for a in range(3):
+        for index in range(n):
+            centre = origin[a] + (index + 0.5) * resolution
+            for r in range(3):
+                terms[r, a, index] = matrix[r, a] * centre
+    # one line of cells along k at a time, projected first in a loop without branches (the
+    # compiler vectorises it), then looked at cell by cell
+    xs, ys, zs = np.empty(n), np.empty(n), np.empty(n)
+    ws, us, vs = np.empty(n), np.empty(n), np.empty(n)
+    kept = 0
+    for i in range(n):
+        for j in range(n):
+            ax = terms[0, 0, i] + terms[0, 1, j]
+            ay = terms[1, 0, i] + terms[1, 1, j]
+            az = terms[2, 0, i] + terms[2, 1, j]
+            for k in range(n):
+                x = ax + terms[0, 2, k] + offset[0]
+                y = ay + terms[1, 2, k] + offset[1]
+                z = az + terms[2, 2, k] + offset[2]
+                w = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
+                xs[k], ys[k], zs[k], ws[k] = x, y, z, w
+                # pixel centres at integer coordinates (ROS): the nearest pixel
+                us[k] = np.rint((P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]) / w)
+                vs[k] = np.rint((P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]) / w)
+            line = (i * n + j) * n
+            for k in range(n):
+                z, w, u, v = zs[k], ws[k], us[k], vs[k]
+                if not (z > MIN_DEPTH and w > 0.0 and 0 <= u < width and 0 <= v < height):
+                    continue
+                x, y = xs[k], ys[k]
+                row, col = int(v), int(u)
+                stored = float(surface[row, col, 0])
+                if not math.isfinite(stored):
+                    continue
+                measured = abs(stored)
+                pixel_spread = float(surface[row, col, 1])
+                if not math.isfinite(pixel_spread):
+                    continue
+                cell_range = math.sqrt(x * x + y * y + z * z)
+                measured_range = measured * cell_range / z
+                behind = cell_range - measured_range      # > 0: the centre is behind the surface
+                far_side = behind + half
+                on_object = stored > 0.0
+                if on_object:
+                    if behind > band_behind:
+                        continue
+                elif far_side > free_limit:
+                    continue
+                spread = pixel_spread * cell_range / z
+                growth = measured_range * measured_range if noise_squared else measured_range
+                sigma_s = max(model[2] + model[3] * growth, spread)
+                if surely_confident_free(far_side, sigma_s, model, inv_epsilon, inv_tau):
+                    update = lowest
+                else:
+                    update = model_log_odds(far_side, measured_range, spread, model)
+                c = line + k
+                if want_cells:
+                    cells[kept] = c
+                if want_updates:
+                    updates[kept] = update
+                if want_deltas:
+                    deltas[kept] = far_side
+                if want_ranges:
+                    ranges[kept] = measured_range
+                if apply:
+                    log_odds[c] = min(max(log_odds[c] + update, clamp_low), clamp_high)
+                kept += 1
+    return kept
+
+
+@_compiled
+def depth_surface(depth: NDArray[np.float32], mask: NDArray[np.bool_], window: int,
+                  surface: NDArray[np.float32]) -> None:
+    """``surface`` (H, W, 2) as :func:`expose_grid` reads it: in channel 0 the depth where
+    it is finite and positive (NaN elsewhere), negated off the object (``mask`` (H, W), or
+    (0, 0): all object), so a cell's one pixel read brings the mask too; in channel 1 the
+    depth's local spread over a ``window`` square (odd; 0: no spread, zeros):
+    ``vision_model.depth_spread``'s definition (the reference), in float64, a row at a
+    time over a few padded row buffers (loops without branches, which the compiler
+    vectorises) instead of five box filters and their full-image temporaries."""
+    height, width = depth.shape
+    has_mask = mask.shape[0] > 0
+    for r in range(height):
+        for c in range(width):
+            z = depth[r, c]
+            if not (math.isfinite(z) and z > 0.0):
+                z = np.nan
+            elif has_mask and not mask[r, c]:
+                z = -z
+            surface[r, c, 0] = z
+            surface[r, c, 1] = 0.0
+    if window == 0:
+        return
+    half = window // 2
+    need = window * window / 2.0          # at least half the window's pixels complete
+    padded = width + 2 * half
+    # rows r-1, r, r+1 (by r % 3) of the depth with 0 where there is none, and of 1 where
+    # there is one; one column of zeros on each side (outside the image: no depth)
+    filled = np.zeros((3, width + 2))
+    valid = np.zeros((3, width + 2))
+    three_sum = np.zeros(width + 2)
+    three_valid = np.zeros(width + 2)
+    # the last ``window`` rows (by r % window) of the complete flags (all nine neighbours
+    # with a depth) and squared residuals from the 3x3 mean, ``half`` zeros on each side,
+    # and their column sums
+    ring_count = np.zeros((window, padded))
+    ring_square = np.zeros((window, padded))
+    column_count = np.zeros(padded)
+    column_square = np.zeros(padded)
+    row_count, row_square, row_spread = np.zeros(width), np.zeros(width), np.zeros(width)
+    _load_row(depth, 0, filled[0], valid[0])
+    for r in range(height + half):
+        slot = r % window
+        for c in range(padded):           # the row leaving the window
+            column_count[c] -= ring_count[slot, c]
+            column_square[c] -= ring_square[slot, c]
+            ring_count[slot, c] = 0.0
+            ring_square[slot, c] = 0.0
+        if r < height:                    # the row entering it
+            above, here, below = (r + 2) % 3, r % 3, (r + 1) % 3
+            _load_row(depth, r + 1, filled[below], valid[below])
+            for c in range(width + 2):
+                three_sum[c] = filled[above, c] + filled[here, c] + filled[below, c]
+                three_valid[c] = valid[above, c] + valid[here, c] + valid[below, c]
+            for c in range(width):
+                nine = three_valid[c] + three_valid[c + 1] + three_valid[c + 2]
+                residual = filled[here, c + 1] - \
+                    (three_sum[c] + three_sum[c + 1] + three_sum[c + 2]) / 9.0
+                complete = 1.0 if nine == 9.0 else 0.0
+                ring_count[slot, c + half] = complete
+                ring_square[slot, c + half] = complete * residual * residual
+            for c in range(padded):
+                column_count[c] += ring_count[slot, c]
+                column_square[c] += ring_square[slot, c]
+        out = r - half                    # the row whose window is now complete
+        if out < 0:
             continue
-        # pixel centres at integer coordinates (ROS): the nearest pixel
-        u = np.rint((P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]) / w)
-        v = np.rint((P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]) / w)
-        if not (0 <= u < width and 0 <= v < height):
-            continue
-        row, column = int(v), int(u)
-        measured = float(surface[row, column, 0])
-        if not (math.isfinite(measured) and measured > 0.0):
-            continue
-        pixel_spread = float(surface[row, column, 1])
-        if not math.isfinite(pixel_spread):
-            continue
-        cell_range = math.sqrt(x * x + y * y + z * z)
-        measured_range = measured * cell_range / z
-        behind = cell_range - measured_range          # > 0: the centre is behind the surface
-        far_side = behind + half
-        on_object = mask[row, column] if has_mask else True
-        if on_object:
-            if behind > band_behind:
-                continue
-        elif far_side > free_limit:
-            continue
-        cells[kept] = k
-        deltas[kept] = far_side
-        ranges[kept] = measured_range
-        updates[kept] = model_log_odds(far_side, measured_range, pixel_spread * cell_range / z,
-                                       model)
-        kept += 1
-    return cells[:kept], updates[:kept], deltas[:kept], ranges[:kept]
+        row_count[:] = 0.0
+        row_square[:] = 0.0
+        for d in range(window):
+            for c in range(width):
+                row_count[c] += column_count[c + d]
+                row_square[c] += column_square[c + d]
+        for c in range(width):
+            count = row_count[c]
+            spread = math.sqrt(max(row_square[c], 0.0) / max(count, 1.0))
+            row_spread[c] = spread if count >= need else np.nan
+        for c in range(width):
+            surface[out, c, 1] = row_spread[c]
+
+
+@_inlined
+def _load_row(depth: NDArray[np.float32], r: int, filled: Floats, valid: Floats) -> None:
+    """Row ``r`` of the depth into ``filled`` (0 where there is no depth) and ``valid`` (1
+    where there is), from index 1; zeros if ``r`` is past the last row."""
+    if r >= depth.shape[0]:
+        filled[:] = 0.0
+        valid[:] = 0.0
+        return
+    for c in range(depth.shape[1]):
+        z = float(depth[r, c])
+        ok = math.isfinite(z)
+        filled[c + 1] = z if ok else 0.0
+        valid[c + 1] = 1.0 if ok else 0.0

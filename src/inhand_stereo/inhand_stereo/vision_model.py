@@ -69,7 +69,7 @@ from scipy.special import ndtr  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Bools, Floats, Matrix3, Vector3
 from inhand_mapping.occupancy import GridSpec
-from inhand_stereo.vision_kernels import select_cells
+from inhand_stereo.vision_kernels import depth_surface, expose_grid
 
 __all__ = ['NOISE_MODELS', 'UPDATES', 'VisionMap', 'VisionModel', 'VisionObservation',
            'depth_spread', 'observe_grid', 'warm_up']
@@ -231,12 +231,11 @@ def depth_spread(depth: NDArray[np.floating], window: int = 5) -> NDArray[np.flo
     return spread
 
 
-def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray[np.floating],
-                 P: ArrayLike, map_to_camera: tuple[Matrix3, Vector3], model: VisionModel,
+def observe_grid(spec: GridSpec, depth: NDArray[np.floating], P: ArrayLike,
+                 map_to_camera: tuple[Matrix3, Vector3], model: VisionModel,
                  object_mask: Bools | None = None,
                  spread: NDArray[np.floating] | None = None) -> VisionObservation:
-    """The cells (rows of ``centres``, map frame, cells of edge ``resolution``) one
-    exposure updates (module doc).
+    """The cells of the grid ``spec`` one exposure updates (module doc).
 
     ``depth`` (H, W): z along the rectified left optical axis per pixel, NaN where there is
     no measurement; ``P`` the rectified left camera's 3x4 projection; ``map_to_camera``
@@ -245,23 +244,40 @@ def observe_grid(centres: NDArray[np.float64], resolution: float, depth: NDArray
     front of it is free (cells with mu = 0), its own surface is not the object's.
     ``spread`` (H, W): the measured local spread of the depth (:func:`depth_spread`),
     raising sigma_s where it is larger; NaN there means no measurement."""
-    matrix, offset = map_to_camera
-    surface = np.zeros((*np.shape(depth), 2), dtype=np.float32)
-    surface[..., 0] = depth
+    surface = np.empty((*np.shape(depth), 2), dtype=np.float32)
+    depth_surface(np.ascontiguousarray(depth, dtype=np.float32), _mask_argument(object_mask), 0,
+                  surface)
     if spread is not None:
         surface[..., 1] = spread
+    size = spec.cells_per_axis ** 3
+    cells, updates = np.empty(size, dtype=np.intp), np.empty(size)
+    delta, measured_range = np.empty(size), np.empty(size)
+    kept = _expose(spec, surface, P, map_to_camera, model, np.empty(0), (0.0, 0.0),
+                   (cells, updates, delta, measured_range))
+    return VisionObservation(cells[:kept].copy(), updates[:kept].copy(), delta[:kept].copy(),
+                             measured_range[:kept].copy())
+
+
+def _mask_argument(object_mask: Bools | None) -> NDArray[np.bool_]:
+    """The object mask as the kernels take it: (0, 0) for none."""
+    return (np.empty((0, 0), dtype=bool) if object_mask is None
+            else np.ascontiguousarray(object_mask, dtype=bool))
+
+
+def _expose(spec: GridSpec, surface: NDArray[np.float32], P: ArrayLike,
+            map_to_camera: tuple[Matrix3, Vector3], model: VisionModel, log_odds: Floats,
+            clamp: tuple[float, float], outputs: tuple[NDArray[np.intp], Floats, Floats, Floats]) -> int:
+    """vision_kernels.expose_grid with the model's and the camera's arguments."""
+    matrix, offset = map_to_camera
     # The small inputs as fresh (writable) copies: a read-only one (a camera's P from a
     # message buffer) would be another type to numba, and another compile.
-    cells, updates, delta, measured_range = select_cells(
-        np.ascontiguousarray(centres, dtype=np.float64),
-        np.array(matrix, dtype=np.float64),
-        np.array(offset, dtype=np.float64).reshape(3),
-        np.array(P, dtype=np.float64).reshape(3, 4), surface,
-        np.empty((0, 0), dtype=bool) if object_mask is None else
-        np.ascontiguousarray(object_mask, dtype=bool),
-        float(resolution), float(model.band_behind(resolution)), -model.epsilon / 2.0,
-        model.kernel_parameters())
-    return VisionObservation(cells, updates, delta, measured_range)
+    kept: int = expose_grid(
+        spec.cells_per_axis, np.array(spec.origin, dtype=np.float64).reshape(3),
+        float(spec.resolution), np.array(matrix, dtype=np.float64),
+        np.array(offset, dtype=np.float64).reshape(3), np.array(P, dtype=np.float64).reshape(3, 4),
+        surface, float(model.band_behind(spec.resolution)), -model.epsilon / 2.0,
+        model.kernel_parameters(), log_odds, clamp[0], clamp[1], *outputs)
+    return kept
 
 
 class VisionMap:
@@ -276,30 +292,38 @@ class VisionMap:
         self.clamp = (_logit(clamp[0]), _logit(clamp[1]))
         self.log_odds: NDArray[np.float64] = np.zeros(spec.shape, dtype=np.float64)
         self.exposures = 0
-        n = spec.cells_per_axis
-        ijk = np.indices((n, n, n)).reshape(3, -1).T
-        self.centres: NDArray[np.float64] = spec.cell_centres(ijk)
+        self._surface = np.empty((0, 0, 2), dtype=np.float32)   # reused while the size holds
+
+    def _depth_surface(self, depth: NDArray[np.floating], object_mask: Bools | None
+                       ) -> NDArray[np.float32]:
+        """The depth (with the object mask) and its local spread (the model's
+        ``spread_window``; 0: none), side by side as the kernel reads them."""
+        if self._surface.shape[:2] != np.shape(depth):
+            self._surface = np.empty((*np.shape(depth), 2), dtype=np.float32)
+        depth_surface(np.ascontiguousarray(depth, dtype=np.float32), _mask_argument(object_mask),
+                      self.model.spread_window, self._surface)
+        return self._surface
 
     def observe(self, depth: NDArray[np.floating], P: ArrayLike,
                 map_to_camera: tuple[Matrix3, Vector3], object_mask: Bools | None = None
                 ) -> VisionObservation:
         """The exposure's updates, without applying them (:func:`observe_grid`, with the
         depth's local spread when the model's ``spread_window`` is on)."""
-        window = self.model.spread_window
-        spread = depth_spread(depth, window) if window else None
-        return observe_grid(self.centres, self.spec.resolution, depth, P, map_to_camera,
-                            self.model, object_mask, spread)
+        surface = self._depth_surface(depth, None)
+        return observe_grid(self.spec, surface[..., 0], P, map_to_camera, self.model,
+                            object_mask, surface[..., 1])
 
     def integrate(self, depth: NDArray[np.floating], P: ArrayLike,
                   map_to_camera: tuple[Matrix3, Vector3], object_mask: Bools | None = None
-                  ) -> VisionObservation:
-        """Apply one exposure; returns what it updated."""
-        observation = self.observe(depth, P, map_to_camera, object_mask)
-        flat = self.log_odds.reshape(-1)
-        flat[observation.cells] = np.clip(flat[observation.cells] + observation.log_odds,
-                                          *self.clamp)
+                  ) -> int:
+        """Apply one exposure (what :meth:`observe` returns, added and clamped in the same
+        pass over the grid); returns how many cells it updated."""
+        nothing = np.empty(0)
+        updated = _expose(self.spec, self._depth_surface(depth, object_mask), P, map_to_camera,
+                          self.model, self.log_odds.reshape(-1), self.clamp,
+                          (np.empty(0, dtype=np.intp), nothing, nothing, nothing))
         self.exposures += 1
-        return observation
+        return updated
 
     def reset(self) -> None:
         self.log_odds.fill(0.0)

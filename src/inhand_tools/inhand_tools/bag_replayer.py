@@ -114,6 +114,8 @@ def start_stamp(source: BagSource, start_offset: float) -> int:
 
 # -- replaying -----------------------------------------------------------------------------
 
+HEARTBEAT_NS = 20_000_000
+
 def replay_bag(ros_args: list[str], source: BagSource, streams: dict[str, Stream],
                options: ReplayOptions, start_ns: int) -> ReplayStats:
     """Replay ``streams`` from bag time ``start_ns`` in a ROS session started with
@@ -121,9 +123,10 @@ def replay_bag(ros_args: list[str], source: BagSource, streams: dict[str, Stream
     A second signal while stopping raises KeyboardInterrupt."""
     from rclpy.node import Node
 
-    from inhand_tools.fastdds_heartbeats import fast_heartbeats
     from inhand_tools.ros_session import RosSession
-    with fast_heartbeats(), RosSession(ros_args) as session:
+    # a heartbeat every 20 ms (3 s by default): a fast replay is paced by acknowledgements,
+    # which a reliable reader sends when a heartbeat asks (dds_profile.py)
+    with RosSession(ros_args, writer_heartbeat_ns=HEARTBEAT_NS) as session:
         node = Node('bag_replay')
         try:
             return Replayer(node, session.stop, source, streams, options).run(start_ns)

@@ -22,6 +22,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from inhand_common.dds_profile import shipped_profile
 from inhand_common.stop_flag import StopFlag
 
 __all__ = ['InvalidTopicName', 'RosSession', 'StopFlag', 'graph_types', 'resolve_topic',
@@ -31,8 +32,11 @@ __all__ = ['InvalidTopicName', 'RosSession', 'StopFlag', 'graph_types', 'resolve
 class RosSession:
     """``with RosSession(argv) as session:`` rclpy initialised; ``session.stop`` on a signal."""
 
-    def __init__(self, args: list[str], second_signal_interrupts: bool = True):
+    def __init__(self, args: list[str], second_signal_interrupts: bool = True,
+                 writer_heartbeat_ns: int | None = None):
         self.args = list(args)
+        # the graph's Fast DDS profile (dds_profile.py), with a writer heartbeat if asked
+        self._profile = shipped_profile(writer_heartbeat_ns)
         self.stop = StopFlag()
         self.signal: int | None = None
         self._escalate = second_signal_interrupts
@@ -47,11 +51,17 @@ class RosSession:
     def __enter__(self) -> RosSession:
         self._previous = {sig: signal.signal(sig, self._on_signal)
                           for sig in (signal.SIGINT, signal.SIGTERM)}
-        rclpy.init(args=self.args, signal_handler_options=SignalHandlerOptions.NO)
+        self._profile.__enter__()
+        try:
+            rclpy.init(args=self.args, signal_handler_options=SignalHandlerOptions.NO)
+        except BaseException:
+            self._profile.__exit__(None, None, None)
+            raise
         return self
 
     def __exit__(self, *exc) -> None:
         rclpy.try_shutdown()
+        self._profile.__exit__(None, None, None)
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
 

@@ -44,6 +44,7 @@ from inhand_mapping.cloud_layouts import textured_cells, vision_cells
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 from inhand_mapping.qos import LATCHED_QOS
 from inhand_mapping.registration import Registrar
+from inhand_stereo.scene_segmentation import warm_up as warm_up_segmentation
 from inhand_stereo.shot_placement import PlacedShot, ShotPlacer, UnplacedShot
 from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
 from inhand_stereo.stereo_inputs import StereoInputs, StereoPair, shot_from_messages
@@ -74,6 +75,7 @@ class StereoNode(Node):
         self.vision = VisionMap(config.grid, config.vision, config.clamp)
         started = time.monotonic()
         warm_up(config.vision, config.grid.resolution)   # not on the first pair
+        warm_up_segmentation(config.grid, config.segmentation)
         self.get_logger().info(f'kernels ready in {time.monotonic() - started:.2f} s')
         self.cells: np.ndarray | None = None         # the latest occupied cloud's points
         self.counts = {'pairs': 0, 'refused': 0, 'no_object_pose': 0}
@@ -190,12 +192,12 @@ class StereoNode(Node):
 
     def _publish_vision(self, placed: PlacedShot, stamp: Any) -> None:
         started = time.perf_counter()
-        observation, segmentation = placed.integrate_into(self.vision, self.config.camera_pose,
+        updated, segmentation = placed.integrate_into(self.vision, self.config.camera_pose,
                                                           self.config.segmentation)
         cells = vision_cells(self.vision.spec, self.vision.log_odds)
         self._vision.publish(serialize_point_cloud2(cells, self.frames.map_frame, stamp.sec, stamp.nanosec))
         self.get_logger().info(
-            f'vision map: pair {self.vision.exposures} updated {len(observation.cells)} cells '
+            f'vision map: pair {self.vision.exposures} updated {updated} cells '
             f'from {int(segmentation.keep.sum())} object pixels (support plane '
             f"{'removed' if segmentation.support is not None else 'none'}) in "
             f'{(time.perf_counter() - started) * 1000:.0f} ms')

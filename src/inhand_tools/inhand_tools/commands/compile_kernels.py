@@ -12,7 +12,8 @@ What it runs is what the programs run, on scratch data (the kernels' argument ty
 not depend on the sizes): the occupancy update of both touch models with its surface
 layer (``occupancy.warm_up``) and the gathering of the map's cells, the fusion of a touch
 and a vision map by every fusion and pooling (``fusion.fuse``), and one exposure of the
-vision map (``vision_model.warm_up``).
+vision map with the scene segmentation that precedes it (``vision_model.warm_up``,
+``scene_segmentation.warm_up``).
 ``benchmark.sh startup`` checks that a build_map and both nodes then compile nothing.
 Exit status 0, or 1 when a kernel fails to compile (the message says which).
 """
@@ -30,6 +31,7 @@ from inhand_mapping.fusion import FUSIONS, POOLINGS, fuse
 from inhand_mapping.mapping_config import load_parameters
 from inhand_mapping.occupancy import TOUCH_MODELS, GridSpec, OccupancyGrid
 from inhand_mapping.occupancy import warm_up as warm_up_occupancy
+from inhand_stereo.scene_segmentation import warm_up as warm_up_segmentation
 from inhand_stereo.stereo_config import load_stereo_config
 from inhand_stereo.vision_model import warm_up as warm_up_vision
 
@@ -63,10 +65,11 @@ def _fusion() -> None:
 def _vision() -> None:
     config = load_stereo_config((), {})
     warm_up_vision(config.vision, config.grid.resolution)
+    warm_up_segmentation(config.grid, config.segmentation)
 
 
 STEPS = (('occupancy update and surface layer', _occupancy), ('fusion', _fusion),
-         ('vision map', _vision))
+         ('vision map and scene segmentation', _vision))
 
 
 def main(argv: list[str] | None = None) -> int:
