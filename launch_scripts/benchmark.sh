@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|vision|texture|quality|validation|fingers|startup|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|quality|validation|fingers|startup|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -16,6 +16,12 @@
 #                      --quick, --runs N, --no-accuracy, --no-timing)
 #   stereo-bags        disparity of the bundled bags' stereo pairs against their truth
 #                      (test/benchmarks/bench_stereo_bags.py: no options)
+#   stereo-node        the stereo node over DDS: 640x480 rgb8 images best effort with and
+#                      without the graph's Fast DDS profile, publish-to-disparity latency
+#                      against the bare OpenCV matcher, 15 pairs/s for 60 s from a reliable
+#                      and a best-effort publisher, every pair counted
+#                      (test/benchmarks/bench_stereo_node.py: --seconds S, --rate HZ,
+#                      --latency-pairs N, --quick)
 #   vision             one pair's vision update (segmentation, integration) on each bundled
 #                      bag's pair, the integration against Open3D's UniformTSDFVolume on one
 #                      core (installs open3d-cpu into .venv-open3d on first use), against
@@ -67,6 +73,7 @@ declare -A BENCHMARKS=(
   [replay]=bench_replay.py
   [stereo]=bench_stereo.py
   [stereo-bags]=bench_stereo_bags.py
+  [stereo-node]=bench_stereo_node.py
   [vision]=bench_vision.py
   [texture]=bench_texture.py
   [quality]=bench_quality.py
@@ -77,7 +84,7 @@ declare -A BENCHMARKS=(
   [fuzz]=fuzz.py
   [soak]=soak.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags vision texture quality validation fingers startup latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture quality validation fingers startup latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

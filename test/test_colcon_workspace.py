@@ -18,7 +18,7 @@ EXECUTABLES = {
     'inhand_sim': ['simulate_session'],
     'inhand_stereo': ['stereo_node', 'calibrate_stereo', 'calibrate_camera_tracker'],
     'inhand_tools': ['bag_replay', 'bag_record', 'topic_echo', 'map_metrics', 'render_map',
-                     'build_map', 'calibrate_vision_model'],
+                     'build_map', 'calibrate_vision_model', 'dds_profile'],
     'inhand_view': ['live_view'],
 }
 

@@ -22,6 +22,7 @@ setup(
             'bag_replay = inhand_tools.commands.bag_replay:main',
             'build_map = inhand_tools.commands.build_map:main',
             'compile_kernels = inhand_tools.commands.compile_kernels:main',
+            'dds_profile = inhand_tools.commands.dds_profile:main',
             'calibrate_fingertips = inhand_tools.commands.calibrate_fingertips:main',
             'calibrate_vision_model = inhand_tools.commands.calibrate_vision_model:main',
             'bag_record = inhand_tools.commands.bag_record:main',

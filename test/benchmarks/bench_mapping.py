@@ -14,7 +14,11 @@ interleaved (OctoMap, n1, n27, OctoMap, ...) so drift hits all alike; each figur
 best of R runs after a warm-up call. OctoMap gets a fresh tree per run; the grid is
 ``reset()`` between runs (the node keeps one grid). The first call's time (numba loading
 its on-disk cache) and a cold compile (a fresh process with an empty NUMBA_CACHE_DIR) are
-reported separately. Targets: n1 >= 10x OctoMap, n27 >= 2x.
+reported separately. The headline is the default touch model (the path model,
+touch_paths.py) on a fingertip stream (three fingers at 240 Hz for 120 s): its samples per
+second against OctoMap's points per second in the same run, targets >= 3 M samples/s and
+>= 1.2x OctoMap. The samples model (paper eq. 3-4 per sample) stays as a reference: n1 >=
+10x OctoMap, n27 >= 2x.
 
 Part 2, the occupancy node publishing a full map: a 70^3 grid with every cell touched (one
 measurement at each cell centre, a second on half the cells so they are above the 0.8
@@ -23,7 +27,8 @@ threshold, a third on a slab, so intensities and hits vary) goes through what
 pass, ``MapClouds``, writing the touched and the occupied cells into reused buffers; x y z intensity
 float32, hits uint32, first_touch float32: 24 B x 343,000 points = 8.2 MB), then
 ``serialize_point_cloud2`` (the CDR bytes, one copy of the points) and ``publish(bytes)`` on
-a real rclpy publisher with the node's QoS (``MAP_QOS``: reliable, transient-local, depth 1)
+a real rclpy publisher with the node's QoS (``MAP_QOS``: reliable, transient-local, depth 1),
+both processes as the nodes run (the graph's Fast DDS profile, freed memory kept for reuse),
 in a DDS domain of its own (random ROS_DOMAIN_ID 100-200, ROS_AUTOMATIC_DISCOVERY_RANGE=
 LOCALHOST), first with no subscriber, then with a subscriber in another process (this
 script with ``--subscriber``: a raw subscription that notes when each message arrived, then
@@ -37,8 +42,8 @@ sends them (touched and occupied), and the old message-object path (``to_point_c
 deserialize (``rclpy.serialization.deserialize_message``) to the message ``to_point_cloud2``
 builds and their points (``from_point_cloud2``) are the cells, a late subscriber gets the
 latest map (transient local), and the subscriber gets every message.
-Target: the node path <= 5 ms (best of the repeats) with no subscriber; the figure with
-one subscriber is reported beside it.
+Target: the node path <= 5 ms (best of the repeats) with one subscriber in another
+process, and with none.
 
 Part 3, ``build_map`` on a long session: ``pose_sessions.sphere_session`` (240 Hz, object +
 3 fingertips = 4 stations, moving object, 2000 surface spots; 10 minutes, 1 with --quick)
@@ -87,6 +92,7 @@ TOPIC = 'occupancy/cloud'
 FRAME = 'object'
 RESOLUTION = 0.005
 TARGET_N1, TARGET_N27, TARGET_PUBLISH_MS = 10.0, 2.0, 5.0
+TARGET_PATH_RATE, TARGET_PATH_RATIO = 3e6, 1.2     # the default model: samples/s, x OctoMap
 
 
 def say(text: str = '') -> None:
@@ -205,16 +211,22 @@ def bench_integration(points: np.ndarray, runs: int) -> bool:
     say(f'  numba: cold compile {compile_s:.2f} s (fresh process, empty cache); first call '
         f'here (cache load + a full batch): n1 {first[1] * 1e3:.0f} ms, '
         f'n27 {first[27] * 1e3:.0f} ms')
-    bench_path_model(runs)
+    path_rate = bench_path_model(runs)
     ratio1, ratio27 = rate[1] / rate['octomap'], rate[27] / rate['octomap']
     ok1, ok27 = ratio1 >= TARGET_N1, ratio27 >= TARGET_N27
-    say(f'  neighbourhood 1 : {ratio1:6.1f}x OctoMap (target >= {TARGET_N1:g}x)  {verdict(ok1)}')
-    say(f'  neighbourhood 27: {ratio27:6.1f}x OctoMap (target >= {TARGET_N27:g}x)  '
-        f'{verdict(ok27)}')
-    return ok1 and ok27
+    path_ratio = path_rate / rate['octomap']
+    path_ok = path_rate >= TARGET_PATH_RATE and path_ratio >= TARGET_PATH_RATIO
+    say(f'  DEFAULT (path) model: {path_rate / 1e6:.2f} M samples/s = {path_ratio:.2f}x OctoMap '
+        f'(target >= {TARGET_PATH_RATE / 1e6:g} M samples/s and >= {TARGET_PATH_RATIO:g}x)  '
+        f'{verdict(path_ok)}')
+    say(f'  reference, samples model, neighbourhood 1 : {ratio1:6.1f}x OctoMap (target >= '
+        f'{TARGET_N1:g}x)  {verdict(ok1)}')
+    say(f'  reference, samples model, neighbourhood 27: {ratio27:6.1f}x OctoMap (target >= '
+        f'{TARGET_N27:g}x)  {verdict(ok27)}')
+    return path_ok
 
 
-def bench_path_model(runs: int) -> None:
+def bench_path_model(runs: int) -> float:
     """The default touch model on a fingertip stream: three fingers at 240 Hz for 120 s,
     sliding at 2-15 cm/s with 1 mm of noise (random strokes over a sphere-sized region),
     and the map read once at the end (the surface layer, surface_layer.py)."""
@@ -248,6 +260,7 @@ def bench_path_model(runs: int) -> None:
     say(f'  path touch model (default), 3 fingers x 240 Hz x 120 s = {count:,} samples: '
         f'{best * 1e3:.0f} ms, {count / best / 1e6:.2f} M samples/s, '
         f'{seconds / best:.0f}x real time')
+    return count / best
 
 
 # ============================================================================ part 2
@@ -555,9 +568,8 @@ def bench_publish(repeats: int) -> tuple[bool, bool, bool]:
         f'{statistics.median(whole["old", "none"]) * 1e3:.2f} median; 1 subscriber '
         f'{min(whole["old", "one"]) * 1e3:.2f} ms best, '
         f'{statistics.median(whole["old", "one"]) * 1e3:.2f} median')
-    say(f'  target <= {TARGET_PUBLISH_MS:g} ms, node path with no subscriber (the PASS/FAIL '
-        f'that counts): {verdict(ok["none"])}; with 1 subscriber in another process '
-        f'(reported): {verdict(ok["one"])}')
+    say(f'  target <= {TARGET_PUBLISH_MS:g} ms, node path with 1 subscriber in another '
+        f'process: {verdict(ok["one"])}; with no subscriber: {verdict(ok["none"])}')
     return all(ok for _, ok in checks), ok['none'], ok['one']
 
 
@@ -711,7 +723,7 @@ def bench_build_map(seconds: float) -> bool:
 
 # ============================================================================ main
 
-def main() -> int:
+def _main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--quick', action='store_true',
                         help='200,000 points, 3 runs, 5 publish repeats, a 60 s session '
@@ -747,12 +759,23 @@ def main() -> int:
     checks3 = bench_build_map(session_seconds)
     say()
     checks_ok = checks2 and checks3
-    say(f'== Summary: integration targets {verdict(ok1)}; full map published within '
-        f'{TARGET_PUBLISH_MS:g} ms (node path, no subscriber) {verdict(publish_ok)}, with 1 '
-        f'subscriber {verdict(publish_sub_ok)}; checks {verdict(checks_ok)} '
+    say(f'== Summary: the default touch model against OctoMap {verdict(ok1)}; full map published within '
+        f'{TARGET_PUBLISH_MS:g} ms (node path) with 1 subscriber {verdict(publish_sub_ok)}, '
+        f'with none {verdict(publish_ok)}; checks {verdict(checks_ok)} '
         f'({time.perf_counter() - start:.0f} s)')
     say('   (exit status: non-zero only if a check fails; targets are reported, not enforced)')
     return 0 if checks_ok else 1
+
+
+def main() -> int:
+    """As every node of the graph runs (node_runner.py): freed memory kept for the next
+    message, the graph's Fast DDS profile (the map's 8.2 MB cloud through shared memory);
+    the subscriber process too."""
+    from inhand_common.dds_profile import shipped_profile
+    from inhand_common.heap_reuse import reuse_freed_memory
+    reuse_freed_memory()
+    with shipped_profile():
+        return _main()
 
 
 if __name__ == '__main__':

@@ -141,8 +141,9 @@ def sessions_of(args, objects, modes, rates, speeds) -> list[Session]:
         return [Session(k, obj, speed, rate, static, hand) for k, (obj, static, rate, speed)
                 in enumerate(grid)]
     hands = []
-    for prop, values in SWEEP.items():
-        for value in values:
+    swept = args.sweep_only.split(',') if args.sweep_only else list(SWEEP)
+    for prop in swept:
+        for value in SWEEP[prop]:
             hand = dict(NOMINAL_HAND)
             hand.update(SWEEP_WITH.get(prop, ()))
             hand[prop] = value
@@ -172,7 +173,13 @@ def main() -> int:
     parser.add_argument('--sweep', action='store_true',
                         help='vary the hand one property at a time around the nominal hand '
                              'and print the worst F and precision per property value')
+    parser.add_argument('--sweep-only', metavar='PROPERTY[,PROPERTY]',
+                        help=f"with --sweep, only these properties ({', '.join(SWEEP)})")
     args = parser.parse_args()
+    unknown = set(args.sweep_only.split(',')) - set(SWEEP) if args.sweep_only else set()
+    if unknown:
+        parser.error(f"--sweep-only: unknown {', '.join(sorted(unknown))}; "
+                     f"one of {', '.join(SWEEP)}")
     if args.quick:
         args.objects, args.rates, args.modes, args.duration = 'cat,cup', '15,240', 'static', 30.0
     objects = args.objects.split(',')

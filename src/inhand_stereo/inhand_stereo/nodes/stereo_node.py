@@ -17,12 +17,16 @@ pixels (scene_segmentation.py) integrated once, for the occupancy node's fusion.
 A pair that cannot be used (sizes that differ, an unsupported encoding, a camera_info
 inconsistent with the image or with a zero focal length, a right P without a baseline) gets
 one log line naming the problem; nothing is published from it and the node keeps running. A
-pair that comes before its camera_infos waits for them (with one warning). The work is in
+pair that comes before its camera_infos waits for them (with one warning). The callbacks
+only pair the images; one worker thread does a pair's work, the newest pair first, and a
+pair replaced while it was busy is counted as skipped (pair_flow.py): ``diagnostics`` about
+once a second give pairs received, processed, skipped and refused. The work is in
 stereo_pipeline.py; this file only translates messages.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -33,9 +37,11 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
+from inhand_common.health import IntervalCounts, Problems
 from inhand_common.node_runner import run_node
 from inhand_common.packed_rgb import rgb_of_colours
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
+from inhand_common.ros_diagnostics import NodeDiagnostics
 from inhand_common.ros_names import station_pose_topic
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
@@ -44,6 +50,7 @@ from inhand_mapping.cloud_layouts import textured_cells, vision_cells
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 from inhand_mapping.qos import LATCHED_QOS
 from inhand_mapping.registration import Registrar
+from inhand_stereo.pair_flow import NewestPair, flow_report
 from inhand_stereo.scene_segmentation import warm_up as warm_up_segmentation
 from inhand_stereo.shot_placement import PlacedShot, ShotPlacer, UnplacedShot
 from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
@@ -78,7 +85,13 @@ class StereoNode(Node):
         warm_up_segmentation(config.grid, config.segmentation)
         self.get_logger().info(f'kernels ready in {time.monotonic() - started:.2f} s')
         self.cells: np.ndarray | None = None         # the latest occupied cloud's points
-        self.counts = {'pairs': 0, 'refused': 0, 'no_object_pose': 0}
+        self.counts = {'processed': 0, 'refused': 0, 'no_object_pose': 0}
+        self.images = 0
+        # The worker's state (the placer, the vision map, the last shot, the map's cells)
+        # is shared with the object pose and map callbacks: one lock.
+        self._state = threading.Lock()
+        self.pending: NewestPair[StereoPair[Image, CameraInfo]] = NewestPair()
+        self._interval = IntervalCounts(time.monotonic())
         for side in ('left', 'right'):
             for qos in (IMAGE_QOS, RELIABLE_IMAGE_QOS):
                 self.create_subscription(Image, f'stereo/{side}/image_raw',
@@ -100,6 +113,10 @@ class StereoNode(Node):
         self.transforms.send_static([Transform(
             self.get_clock().now().to_msg(), self.frames.tracker_frame, self.frames.camera_frame,
             config.camera_pose[:3], config.camera_pose[3:])])
+        self.diagnostics = NodeDiagnostics(self, 'stereo', self._report,
+                                           data_count=lambda: self.images)
+        self._worker = threading.Thread(target=self._work_loop, name='stereo_work', daemon=True)
+        self._worker.start()
         matcher = self.pipeline.matcher.config
         self.get_logger().info(
             f"stereo: {'semi-global' if matcher.stereo_algorithm else 'block'} matching, "
@@ -108,6 +125,7 @@ class StereoNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _on_image(self, side: str, msg: Image) -> None:
+        self.images += 1
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         held = self.inputs.held
         pair = self.inputs.add_image(side, stamp_ns, msg)
@@ -125,18 +143,30 @@ class StereoNode(Node):
 
     def _on_object_pose(self, raw: bytes) -> None:
         stamps, _, poses = decode_pose_stamped_many([raw])
-        self._decided(self.placer.add_object_pose(float(stamp_seconds(stamps)[0]),
-                                                  poses[0, :3], poses[0, 3:]))
+        with self._state:
+            self._decided(self.placer.add_object_pose(float(stamp_seconds(stamps)[0]),
+                                                      poses[0, :3], poses[0, 3:]))
 
     def _on_map(self, msg: PointCloud2) -> None:
-        self.cells = np.array(from_point_cloud2(msg))
-        self._publish_texture()
+        cells = np.array(from_point_cloud2(msg))
+        with self._state:
+            self.cells = cells
+            self._publish_texture()
 
     # ------------------------------------------------------------------ work
     def _process(self, pair: StereoPair[Image, CameraInfo] | None) -> None:
-        if pair is None:
-            return
-        self.counts['pairs'] += 1
+        if pair is not None:
+            self.pending.offer(pair)        # the worker takes the newest (pair_flow.py)
+
+    def _work_loop(self) -> None:
+        while not self.pending.closed:
+            pair = self.pending.take(timeout=0.2)
+            if pair is not None:
+                with self._state:
+                    self._work(pair)
+
+    def _work(self, pair: StereoPair[Image, CameraInfo]) -> None:
+        self.counts['processed'] += 1
         try:
             shot = shot_from_messages(self.pipeline, pair)
         except ValueError as error:
@@ -217,12 +247,29 @@ class StereoNode(Node):
             f'textured {int(texture.textured.sum())} of {len(centres)} occupied cells in '
             f'{(time.perf_counter() - started) * 1000:.1f} ms')
 
+    def _flow(self) -> dict[str, int]:
+        """The running totals of what happened to the pairs (diagnostics, the last log)."""
+        return {'pairs received': self.pending.received,
+                'pairs processed': self.counts['processed'] - self.counts['refused'],
+                'pairs skipped': self.pending.skipped, 'pairs refused': self.counts['refused'],
+                'pairs without an object pose': self.counts['no_object_pose'],
+                'images unpaired': self.inputs.pairs.dropped,
+                'images duplicate': self.inputs.duplicates}
+
+    def _report(self, now: float, problems: Problems) -> tuple[str, dict[str, object]]:
+        counts = self._flow()
+        elapsed, increases = self._interval.step(time.monotonic(), counts)
+        return flow_report(counts, increases, elapsed, problems)
+
     def close(self) -> None:
-        dropped = self.inputs.pairs.dropped
+        self.pending.close()
+        self._worker.join(timeout=30.0)
+        flow = self._flow()
         self.get_logger().info(
-            f"stopped: {self.counts['pairs']} image pairs, {self.counts['refused']} refused, "
-            f"{self.counts['no_object_pose']} without an object pose, {dropped} images never "
-            'paired')
+            f"stopped: {flow['pairs received']} image pairs, {flow['pairs processed']} "
+            f"processed, {flow['pairs skipped']} skipped while busy, {flow['pairs refused']} "
+            f"refused, {flow['pairs without an object pose']} without an object pose, "
+            f"{flow['images unpaired']} images never paired")
 
 
 def main(args: list[str] | None = None) -> int:
