@@ -249,6 +249,12 @@ def observe_grid(spec: GridSpec, depth: NDArray[np.floating], P: ArrayLike,
                   surface)
     if spread is not None:
         surface[..., 1] = spread
+    return _observation(spec, surface, P, map_to_camera, model)
+
+
+def _observation(spec: GridSpec, surface: NDArray[np.float32], P: ArrayLike,
+                 map_to_camera: tuple[Matrix3, Vector3], model: VisionModel) -> VisionObservation:
+    """The cells one exposure of ``surface`` (depth_surface's layout) updates, not applied."""
     size = spec.cells_per_axis ** 3
     cells, updates = np.empty(size, dtype=np.intp), np.empty(size)
     delta, measured_range = np.empty(size), np.empty(size)
@@ -309,9 +315,8 @@ class VisionMap:
                 ) -> VisionObservation:
         """The exposure's updates, without applying them (:func:`observe_grid`, with the
         depth's local spread when the model's ``spread_window`` is on)."""
-        surface = self._depth_surface(depth, None)
-        return observe_grid(self.spec, surface[..., 0], P, map_to_camera, self.model,
-                            object_mask, surface[..., 1])
+        return _observation(self.spec, self._depth_surface(depth, object_mask), P,
+                            map_to_camera, self.model)
 
     def integrate(self, depth: NDArray[np.floating], P: ArrayLike,
                   map_to_camera: tuple[Matrix3, Vector3], object_mask: Bools | None = None

@@ -116,6 +116,7 @@ def start_stamp(source: BagSource, start_offset: float) -> int:
 
 HEARTBEAT_NS = 20_000_000
 
+
 def replay_bag(ros_args: list[str], source: BagSource, streams: dict[str, Stream],
                options: ReplayOptions, start_ns: int) -> ReplayStats:
     """Replay ``streams`` from bag time ``start_ns`` in a ROS session started with

@@ -59,12 +59,13 @@ from inhand_stereo.stereo_pipeline import StereoPipeline, StereoShot
 from inhand_stereo.vision_model import VisionMap, warm_up
 
 IMAGE_QOS = qos_profile_sensor_data          # best-effort, depth 5
-# A best-effort reader matches every camera driver and bag replay, but Fast DDS never hands it
-# a message that needs many UDP fragments (a 640x480 rgb8 image is 921,600 bytes; measured
-# here: 0 of 3 arrive, while 400 kB ones do). So each image topic is also read reliably: a
-# reliable publisher (a bag replay, most drivers) delivers to both readers, and the copy that
-# comes second is recognised by its stamp and dropped. The camera_infos likewise (a fast
-# replay's burst loses them on a best-effort reader).
+# A best-effort reader matches every camera driver and bag replay. A publisher without the
+# graph's Fast DDS profile (dds_profile.py) sends a 640x480 rgb8 image (921,600 bytes) over
+# UDP in fragments, and a best-effort reader loses about half of them (411 of 900 in
+# benchmark.sh stereo-node). So each image topic is also read reliably: a reliable publisher
+# (a bag replay, most drivers) delivers to both readers, and the copy that comes second is
+# recognised by its stamp and dropped. The camera_infos likewise (a fast replay's burst
+# loses them on a best-effort reader).
 RELIABLE_IMAGE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 POSE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 POINT_FIELDS = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')])
@@ -166,7 +167,6 @@ class StereoNode(Node):
                     self._work(pair)
 
     def _work(self, pair: StereoPair[Image, CameraInfo]) -> None:
-        self.counts['processed'] += 1
         try:
             shot = shot_from_messages(self.pipeline, pair)
         except ValueError as error:
@@ -174,6 +174,7 @@ class StereoNode(Node):
             self.get_logger().error(f'stereo pair at {pair.stamp_ns * 1e-9:.3f} s not used: '
                                     f'{error}')
             return
+        self.counts['processed'] += 1
         self._publish_disparity(shot, pair.left.header)
         self._decided(self.placer.add_shot(shot))
 
@@ -250,7 +251,7 @@ class StereoNode(Node):
     def _flow(self) -> dict[str, int]:
         """The running totals of what happened to the pairs (diagnostics, the last log)."""
         return {'pairs received': self.pending.received,
-                'pairs processed': self.counts['processed'] - self.counts['refused'],
+                'pairs processed': self.counts['processed'],
                 'pairs skipped': self.pending.skipped, 'pairs refused': self.counts['refused'],
                 'pairs without an object pose': self.counts['no_object_pose'],
                 'images unpaired': self.inputs.pairs.dropped,
