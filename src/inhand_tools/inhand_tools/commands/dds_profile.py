@@ -36,7 +36,8 @@ def main(argv: list[str] | None = None) -> int:
         with atomic_write(args.output) as out:
             out.write(xml.encode())
     except OSError as error:
-        print(f'{PROG}: cannot write {args.output}: {error.strerror}', file=sys.stderr)
+        print(f'{PROG}: cannot write {args.output}: {error.strerror} ({error.filename})',
+              file=sys.stderr)
         return 1
     print(f'{PROG}: wrote {args.output}; run the camera driver with '
           f'FASTRTPS_DEFAULT_PROFILES_FILE={args.output}')
