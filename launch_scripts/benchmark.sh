@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|quality|validation|fingers|startup|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|texture-sessions|quality|validation|fingers|startup|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -29,6 +29,8 @@
 #                      --no-open3d)
 #   texture            texture of the occupied cells: time and visibility rules
 #                      (test/benchmarks/bench_texture.py: --quick, --runs N)
+#   texture-sessions   texture on touch maps of other hands and objects, against its
+#                      targets (test/benchmarks/bench_texture_sessions.py: --keep DIR, --set S)
 #   quality            the touch map on simulated sessions: objects x stroke speeds x rates x
 #                      static/tracked, F / precision / recall / stray cells / touched surface
 #                      per session and a summary against the targets
@@ -76,6 +78,7 @@ declare -A BENCHMARKS=(
   [stereo-node]=bench_stereo_node.py
   [vision]=bench_vision.py
   [texture]=bench_texture.py
+  [texture-sessions]=bench_texture_sessions.py
   [quality]=bench_quality.py
   [validation]=bench_validation.py
   [fingers]=bench_fingers.py
@@ -84,7 +87,7 @@ declare -A BENCHMARKS=(
   [fuzz]=fuzz.py
   [soak]=soak.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture quality validation fingers startup latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture texture-sessions quality validation fingers startup latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -644,6 +644,27 @@ def test_render_map_counts_what_is_outside_the_view(tmp_path, panel_labels):
     assert render.outside_note(812) == '+ 812 points outside the view'
 
 
+def test_the_lowest_threshold_shows_what_was_explored_not_what_the_camera_saw_free(
+        tmp_path, panel_labels):
+    """A fused map: every cell the vision map saw free has p > 0 (here 0.12, no hits); the
+    p > 0 picture shows the touched cells and those observed occupied, as the paper's
+    fig. 5 does."""
+    truth, cells = framing_case()
+    free = voxel_centres(np.random.default_rng(0).uniform(-0.1, 0.1, (3000, 3)), cells.lattice)
+    free = free[np.linalg.norm(free, axis=1) > RADIUS + 0.01]
+    seen = np.array([[0.0, 0.0, RADIUS + 0.006]])                # vision: occupied, no hits
+    fused = MapCells(np.concatenate([cells.centres, free, seen]),
+                     np.concatenate([cells.probabilities, np.full(len(free), 0.12), [0.9]]),
+                     np.concatenate([cells.hits, np.zeros(len(free) + 1, dtype=int)]),
+                     np.concatenate([cells.first_touch, np.full(len(free) + 1, np.nan)]),
+                     cells.lattice, 'npz', 'fused', True)
+    draw_all(fused, tmp_path, [0.0, 0.8], None, truth, 'object', size=160)
+    explored = len(cells.centres) + 1
+    counted = {subtitle.split(' cells')[0] for _, subtitle in panel_labels
+               if ' cells' in subtitle and subtitle[0].isdigit()}
+    assert str(explored) in counted and str(len(fused.centres)) not in counted, counted
+
+
 def test_pictures_stand_the_object_upright():
     # The simulator's object frame has +z up; the tracker frame's z points down.
     assert default_up('object') == 'z'

@@ -4,7 +4,7 @@ map files, clouds.
 Expected values are worked out here by hand (math.exp / math.log on the paper's formulas)
 or by a plain-Python per-point, per-neighbour loop, never by calling the code under test.
 
-Model under test (occupancy.py, README): l += w log(L / c) with L = exp(-d^2 / (2 sigma^2)),
+Model under test (occupancy.py, docs/mapping.md): l += w log(L / c) with L = exp(-d^2 / (2 sigma^2)),
 d the distance to the cell (default; 0 inside it) or to its centre (the paper, PAPER
 below), c = P(Z|not O) = 0.45, prior 0.5 (l = 0), clamp to [0.12, 0.97] after every update;
 neighbourhood 1 (containing cell) or 27 (also the 26 neighbours). ``w`` is the sample's

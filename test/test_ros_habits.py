@@ -123,23 +123,40 @@ def test_registration_report_before_any_object_pose_and_to_nobody():
     assert problems.health('', {}).reasons == ('no_subscriber',)
 
 
-def test_occupancy_report_warns_of_points_outside_the_workspace():
+def test_occupancy_report_warns_of_points_outside_the_workspace_only_when_the_map_meets_it():
+    """Fingertips away from the object (lifts, the carry, a re-grasp) leave the workspace in
+    every session: not a problem while the occupied cells keep clear of its faces; a map
+    whose occupied cells reach them may be cut off, and that is warned."""
     health = OccupancyHealth(0.0, '0.35 m cube centred at [0, 0, 0]')
     problems = Problems()
     _, values = health.report(1.0, IntegrationCounts(), OccupancyActivity(publishers=0),
                               problems)
     assert values['state'] == 'waiting for registration/points'
     assert problems.health('', {}).level == OK
-    problems = Problems()
-    message, values = health.report(2.0, IntegrationCounts(integrated=90, outside=10),
-                                    OccupancyActivity(received=100, messages=2, publishers=1,
-                                                      touched_cells=40, occupied_cells=12),
-                                    problems)
-    result = problems.health(message, values)
-    assert result.level == WARN and result.reasons == ('outside',)
-    assert '10 of 100 points fell outside the workspace' in result.message
-    assert values['state'] == 'mapping' and values['occupied_cells'] == 12
-    assert message == 'mapping: 100.0 points/s in, 12 occupied of 40 touched cells'
+    for now, on_faces in ((2.0, 0), (3.0, 7)):
+        problems = Problems()
+        message, values = health.report(
+            now, IntegrationCounts(integrated=int(90 * (now - 1)), outside=int(10 * (now - 1))),
+            OccupancyActivity(received=int(100 * (now - 1)), messages=2, publishers=1,
+                              touched_cells=40, occupied_cells=12,
+                              occupied_on_faces=on_faces), problems)
+        result = problems.health(message, values)
+        assert values['state'] == 'mapping' and values['occupied_cells'] == 12
+        assert message == 'mapping: 100.0 points/s in, 12 occupied of 40 touched cells'
+        if not on_faces:
+            assert result.level == OK and values['outside'] == 10
+            continue
+        assert result.level == WARN and result.reasons == ('outside',)
+        assert '10 of 100 points fell outside the workspace' in result.message
+        assert '7 occupied cells lie on its faces' in result.message
+
+
+def test_the_grid_knows_its_outermost_layer_of_cells():
+    from inhand_mapping.occupancy import GridSpec
+    spec = GridSpec(0.1, 0.01, (0.0, 0.0, 0.0))      # 10 cells a side, from -0.05 to 0.05
+    points = np.array([[0.0, 0.0, 0.0], [-0.049, 0.0, 0.0], [0.0, 0.0, 0.045],
+                       [0.0, 0.035, 0.0], [0.2, 0.0, 0.0]])
+    assert spec.on_faces(points).tolist() == [False, True, True, False, False]
 
 
 # -- frame names ---------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """The soak script (test/benchmarks/soak.py) in one minute: every fault, a kill and a resume.
 
-``benchmark.sh soak`` runs it for 30 minutes (figures in the README); here the same
+``benchmark.sh soak`` runs it for 30 minutes (figures in docs/reliability.md); here the same
 checks run on a minute with a fault every 7 s, so that each kind comes at least once, and
 the occupancy node killed half way and resumed from an autosave 5 s old.
 """

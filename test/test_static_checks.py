@@ -7,6 +7,7 @@ object frame, map files; the list is in pyproject.toml's [tool.mypy] files).
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -31,9 +32,9 @@ def test_mypy_strict_passes_on_the_pure_cores():
     assert result.stdout.startswith('Success'), result.stdout
 
 
-def test_mypy_checks_the_cores_the_readme_names():
-    """The list in pyproject.toml is the one the README promises: a file dropped from it
-    would leave its module unchecked without a word."""
+def test_mypy_checks_the_cores_the_docs_name():
+    """The list in pyproject.toml is the one the docs promise (docs/testing.md, "Static
+    checks"): a file dropped from it would leave its module unchecked without a word."""
     import tomllib
     files = tomllib.loads((WORKSPACE / 'pyproject.toml').read_text())['tool']['mypy']['files']
     names = {Path(f).name for f in files}
@@ -41,6 +42,11 @@ def test_mypy_checks_the_cores_the_readme_names():
             'object_frame.py', 'map_io.py'} <= names
     for name in files:
         assert (WORKSPACE / name).is_file(), name
+    testing = (WORKSPACE / 'docs' / 'testing.md').read_text(encoding='utf-8')
+    promised = re.search(r'^\.venv/bin/mypy +# --strict on (.+)$', testing, re.M)
+    assert promised, 'docs/testing.md no longer says which modules mypy checks'
+    for module in promised.group(1).split(','):
+        assert f'{module.strip()}.py' in names, f'docs/testing.md promises {module.strip()}'
 
 
 # Which workspace packages each package may import: none imports one above it.
@@ -83,3 +89,20 @@ def test_packages_are_layered_and_libraries_import_no_entry_point():
                     problems.append(f'{where} (a library module) imports the entry point '
                                     f'{module}')
     assert not problems, '\n'.join(problems)
+
+
+MAX_FUNCTION_LINES = 100
+
+
+def test_no_function_is_longer_than_a_hundred_lines():
+    """A function that does not fit on a screen and a half does more than one thing."""
+    import ast
+    long = []
+    for path in sorted((WORKSPACE / 'src').rglob('*.py')):
+        for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES:
+                    long.append(f'{path.relative_to(WORKSPACE)}:{node.lineno} {node.name} '
+                                f'({lines} lines)')
+    assert not long, long

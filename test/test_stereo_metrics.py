@@ -1,7 +1,7 @@
 """The map's colours and the stereo shot against the simulator's truth (``map_metrics``,
 ``inhand_tools/map_quality.py``'s colour metrics, ``inhand_tools/stereo_quality.py``).
 
-On the bundled cat sessions, mapped by ``build_map`` with config/stereo.yaml as the README
+On the bundled cat sessions, mapped by ``build_map`` with config/stereo.yaml as docs/stereo.md
 says, and on hand-made cases whose values are worked out in the comments. No DDS.
 """
 

@@ -254,3 +254,55 @@ def test_bad_pairs_are_refused_in_one_line_and_the_node_keeps_running():
             assert 'Traceback' not in node.output()
         finally:
             publisher.close()
+
+
+def _wait_in_output(node, text: str, timeout: float) -> float:
+    """Seconds until ``text`` appears in the node's output (AssertionError after timeout)."""
+    started = time.monotonic()
+    while text not in node.output():
+        assert time.monotonic() - started < timeout, f'no {text!r} in:\n{node.output()}'
+        time.sleep(0.05)
+    return time.monotonic() - started
+
+
+def test_the_stereo_node_takes_the_graphs_mode_from_the_registration_node():
+    """The issue's graph: registration static, the stereo node on its defaults: the pair is
+    placed (static), with no mode of the node's own to disagree."""
+    from sensor_msgs.msg import PointCloud2
+
+    from ros_helpers import running
+    listener = LatchedListener([('stereo/points', PointCloud2)])
+    publisher = PairPublisher()
+    try:
+        with running(['registration_node', '--ros-args', '-p', 'mode:=static']), \
+                running(['stereo_node']) as stereo:
+            _wait_in_output(stereo, 'placing the stereo pairs in static mode (from '
+                            '/registration_node)', 30)
+            publisher.wait_matched()
+            publisher.publish(1)
+            cloud = listener.wait_for(lambda latest: 'stereo/points' in latest, 20)
+            assert cloud['stereo/points'].header.frame_id == 'object'
+            assert 'waited' not in stereo.output()
+    finally:
+        publisher.close()
+        listener.close()
+
+
+def test_a_pair_that_cannot_be_placed_is_said_within_seconds_with_what_to_do():
+    """No registration node: the mode is unknown, said within a few seconds; then a
+    tracked registration node without object poses: that is said too, and diagnostics warn."""
+    from ros_helpers import running
+    publisher = PairPublisher()
+    try:
+        with running(['stereo_node']) as stereo:
+            publisher.wait_matched()
+            publisher.publish(1)
+            waited = _wait_in_output(stereo, "the graph's mode is not known", 10)
+            assert waited < 6.0
+            assert 'Start the registration node' in stereo.output()
+            with running(['registration_node', '--ros-args', '-p', 'mode:=tracked']):
+                _wait_in_output(stereo, 'placing the stereo pairs in tracked mode', 30)
+                _wait_in_output(stereo, 'no object pose has come on polhemus/object/pose', 10)
+                assert 'static mode' in stereo.output().split('no object pose has come')[-1]
+    finally:
+        publisher.close()

@@ -136,7 +136,7 @@ def test_the_slow_ends_of_a_transit_count_as_the_transit():
 def test_repeated_involuntary_movements_at_one_place_stay_under_0_8():
     # The paper's concern: a fingertip trembling at one spot for a minute, +-2 mm at 5 Hz
     # with 1 mm of noise, and twitching up 5 mm every 2 s: never two touches' worth. (A
-    # deliberate slow lift through a cell is a slow pass like a slide: README.)
+    # deliberate slow lift through a cell is a slow pass like a slide: docs/mapping.md.)
     rng = np.random.default_rng(3)
     t = np.arange(0.0, 60.0, 1.0 / 240)
     wobble = 0.002 * np.sin(2 * np.pi * 5 * t)[:, None] * np.array([0.6, 0.0, 0.8])

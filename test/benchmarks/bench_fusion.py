@@ -53,7 +53,9 @@ FUSIONS = {
     'entropy eq. 12': ['fusion=entropy', 'entropy_radius=0', 'entropy_pooling=linear'],
     'entropy eq. 12, local r=1': ['fusion=entropy', 'entropy_radius=1',
                                   'entropy_pooling=linear'],
+    'entropy log, whole map': ['fusion=entropy', 'entropy_radius=0', 'entropy_pooling=log'],
     'entropy log, local r=1': ['fusion=entropy', 'entropy_radius=1', 'entropy_pooling=log'],
+    'entropy log, local r=2': ['fusion=entropy', 'entropy_radius=2', 'entropy_pooling=log'],
 }
 
 

@@ -21,11 +21,12 @@ the four views: seen cells textured (and the share of the seen surface area they
 hidden cells textured (the contract says never), split into those more than 1.5 mm from
 any visible surface ("far": paint from somewhere else) and those next to it, and textured
 cells whose colour is not that of visible surface within 1.5 mm of the cell (per channel
-between the lowest and highest such patch colour, +-3). Variants: the orientation rules,
-other ``min_fraction``/``footprint``/``margin``, 1 mm Gaussian depth noise, 2 % wild
+between the lowest and highest such patch colour, +-3). With 1 mm Gaussian depth noise, 2 % wild
 depths (mismatches: +-3 cm), a camera pose 2 mm off (calibration), and ``slab``: the first
 depth rule tried (a sample counts when its measured depth is within one cell of the cell
-centre's depth, a quarter of the 5 x 5 face samples needed).
+centre's depth, a quarter of the 5 x 5 face samples needed). Variants: the orientation
+rules, the window (only the cell; more in front; none behind), the footprint's samples,
+no hole filling.
 
 Part 3, the back of a thin part: a 6 mm plate (faces off the cell boundaries) seen from one
 side; its back cells lie right behind the front ones. Cells that meet only the faces the
@@ -48,7 +49,12 @@ import numpy as np
 WORKSPACE = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(WORKSPACE / 'test'))
 
-from inhand_stereo.texture import map_to_rectified, project_cells, texture_cells  # noqa: E402
+from inhand_stereo.texture import (  # noqa: E402
+    Window,
+    map_to_rectified,
+    project_cells,
+    texture_cells,
+)
 from test_stereo_texture import (  # noqa: E402
     IDENTITY,
     OBJECT_AT,
@@ -200,26 +206,26 @@ def part_rules():
              'back-low': (-0.3, 0.2, -0.02), 'top': (0.02, 0.03, 0.4)}
     # (name, texture_cells options, depth noise sigma (m), fraction of outlier pixels);
     # 'slab' is the first rule tried, for comparison (see depth_slab)
+    cell_only = {'window': Window(0.0, 0.0, 0.0)}        # the point inside the cell, no more
     rules = [('default', {}, 0.0, 0.0),
              ('+ centroid rule', {'orientation': 'centroid'}, 0.0, 0.0),
              ('+ local rule', {'orientation': 'local'}, 0.0, 0.0),
-             ('min_fraction 0.04', {'min_fraction': 0.04}, 0.0, 0.0),
-             ('min_fraction 0.08', {'min_fraction': 0.08}, 0.0, 0.0),
-             ('min_fraction 0.25', {'min_fraction': 0.25}, 0.0, 0.0),
-             ('footprint 1.5', {'footprint': 1.5}, 0.0, 0.0),
-             ('margin 0', {'margin': 0.0}, 0.0, 0.0),
+             ('window: the cell only', cell_only, 0.0, 0.0),
+             ('window: in front 0.5', {'window': Window(in_front=0.5)}, 0.0, 0.0),
+             ('window: behind 0', {'window': Window(behind=0.0)}, 0.0, 0.0),
+             ('samples 5, min 1', {'samples': 5, 'min_samples': 1}, 0.0, 0.0),
+             ('samples 9, min 3', {'samples': 9, 'min_samples': 3}, 0.0, 0.0),
+             ('fill 0', {'fill': 0.0}, 0.0, 0.0),
              ('slab', 'slab', 0.0, 0.0),
              ('default, noise', {}, 0.001, 0.0),
-             ('margin 0, noise', {'margin': 0.0}, 0.001, 0.0),
+             ('the cell only, noise', cell_only, 0.001, 0.0),
              ('slab, noise', 'slab', 0.001, 0.0),
              ('default, noise+wild', {}, 0.001, 0.02),
-             ('min_fraction 0.08, n+w', {'min_fraction': 0.08}, 0.001, 0.02),
-             ('min_fraction 0.04, n+w', {'min_fraction': 0.04}, 0.001, 0.02),
+             ('samples 5, min 1, n+w', {'samples': 5, 'min_samples': 1}, 0.001, 0.02),
              ('+ local rule, n+w', {'orientation': 'local'}, 0.001, 0.02),
              ('slab, noise+wild', 'slab', 0.001, 0.02),
              ('default, pose 2 mm off', {'calibration': 0.002}, 0.001, 0.0),
-             ('margin 0, pose 2 mm off', {'calibration': 0.002, 'margin': 0.0}, 0.001, 0.0),
-             ('margin 1, pose 2 mm off', {'calibration': 0.002, 'margin': 1.0}, 0.001, 0.0),
+             ('the cell only, pose 2 mm off', {'calibration': 0.002, **cell_only}, 0.001, 0.0),
              ('slab, pose 2 mm off', {'slab': True, 'calibration': 0.002}, 0.001, 0.0)]
     totals = {name: np.zeros(5, np.int64) for name, *_ in rules}
     area = {name: np.zeros(2) for name, *_ in rules}
@@ -262,8 +268,6 @@ def part_rules():
             options = {'slab': True} if options == 'slab' else dict(options)
             # a camera pose that is off (calibration, tracker): the camera moved sideways
             where = pose[0] + options.pop('calibration', 0.0) * np.array([0.6, 0.0, 0.8])
-            if 'margin' in options:
-                options['margin'] *= RES
             if options.pop('slab', False):
                 colours, textured = depth_slab(cells, image, cam, (where, pose[1]), noisy, RES)
             else:

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Sessions of our simulator with other hands, written in the validation folder's format, so
 that ``bench_validation.py --folder DIR`` scores them exactly as it scores the held-out
-sessions: the sets the touch model's defaults were chosen on (README: "Other hands").
+sessions: the sets the touch model's defaults were chosen on (docs/quality.md: "Other hands").
 
     .venv/bin/python test/benchmarks/hand_sessions.py --set A --output DIR [--jobs 2] [--first N]
     .venv/bin/python test/benchmarks/bench_validation.py --folder DIR

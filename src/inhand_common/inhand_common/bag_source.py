@@ -8,10 +8,18 @@ No rclpy here, so bag checks run before the ROS runtime loads; used by ``build_m
 that died, a copy that stopped), or that it stops reading at a damaged record, is read
 record by record with :mod:`inhand_common.mcap_recovery`, which skips only the damaged
 parts; ``problem`` says what was read and skipped, in one line.
+
+Damage inside the messages is looked for on open (:mod:`inhand_common.mcap_integrity`):
+the CRC of every MCAP chunk and of the data section, where the writer set them, and
+``PRAGMA quick_check`` of a sqlite3 database. The messages of a chunk whose CRC fails are
+left out (one CRC per chunk cannot tell which of them is damaged), and ``problem`` names
+them in one line: topics, message count per topic and time span (seconds into the bag).
+``checked`` says what could be checked (an MCAP file without CRCs: nothing).
 """
 
 from __future__ import annotations
 
+import sqlite3
 import struct
 import sys
 import time
@@ -19,6 +27,10 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from inhand_common.mcap_recovery import RecoveryReport
 
 __all__ = ['BagError', 'BagSource', 'BagTopic', 'Progress', 'relative_name']
 
@@ -41,8 +53,11 @@ def _read_errors() -> tuple[type[BaseException], ...]:
         from compression import zstd  # type: ignore[import-not-found]  # Python 3.14
     except ImportError:
         from backports import zstd
+    # a damaged sqlite3 page met while reading: rosbags reads sqlite3 bags through apsw
+    import apsw
     return (AnyReaderError, Rosbag1ReaderError, Rosbag2ReaderError, OSError, struct.error,
-            EOFError, OverflowError, ValueError, RuntimeError, zstd.ZstdError)
+            EOFError, OverflowError, ValueError, RuntimeError, zstd.ZstdError, apsw.Error,
+            sqlite3.DatabaseError)
 
 
 def relative_name(topic: str) -> str:
@@ -73,7 +88,9 @@ class BagSource:
         self.start_ns = 0
         self.end_ns = 0
         self.problem: str | None = None
-        self._reader = None
+        self.checked: list[str] = []   # what the integrity check could check, per file
+        self._opened_problem: str | None = None
+        self._reader: Any = None
         self._recovered: list[tuple[str, int, bytes]] | None = None
 
     def __enter__(self) -> BagSource:
@@ -88,6 +105,7 @@ class BagSource:
         except _read_errors() as error:
             self._reader = None
             self._recover(error)
+            self._opened_problem = self.problem
             return self
         for connection in self._reader.connections:
             name = relative_name(connection.topic)
@@ -102,7 +120,62 @@ class BagSource:
             self.start_ns, self.end_ns = self._reader.start_time, self._reader.end_time
             # rosbags' end_time is one past the last message
             self.end_ns = max(self.start_ns, self.end_ns - 1)
+        self._check_integrity()
+        self._opened_problem = self.problem
         return self
+
+    def _storage_files(self, suffix: str) -> list[Path]:
+        if self.bag.is_file():
+            return [self.bag] if self.bag.suffix == suffix else []
+        return sorted(self.bag.glob(f'*{suffix}'))
+
+    def _add_problem(self, said: str) -> None:
+        self.problem = said if not self.problem else f'{self.problem}; {said}'
+
+    def _check_integrity(self) -> None:
+        """After rosbags opened the bag: the CRCs of its MCAP files and the page structure
+        of its sqlite3 databases. A chunk that fails its CRC: its messages are left out
+        (the bag is then read record by record) and ``problem`` names them."""
+        from inhand_common.mcap_integrity import check_mcap, check_sqlite3
+        crc_failed = False
+        for path in self._storage_files('.mcap'):
+            try:
+                report = check_mcap(path)
+            except (OSError, ValueError):
+                continue    # rosbags read it; reading it will say what is wrong
+            self.checked.append(f'{path.name}: {report.checked()}')
+            if report.bad_chunks:
+                crc_failed = True
+            elif report.data_crc == 'mismatch':
+                self._add_problem(f'{path.name}: {report.data_section_said()}')
+            if report.stopped:   # rosbags reads through the summary; the records break
+                self._add_problem(f'{path.name}: {report.stopped}; the data section after it '
+                                  'is not checked')
+        for path in self._storage_files('.db3'):
+            sqlite = check_sqlite3(path)
+            self.checked.append(f'{path.name}: sqlite3 quick_check '
+                                f'{"fails" if sqlite.damaged else "ok"}')
+            if sqlite.damaged:
+                self._add_problem(sqlite.said())
+        if not crc_failed:
+            return
+        mcap = self._mcap_file()
+        if mcap is None:   # more than one file: rosbags stops at the damaged chunk
+            self._add_problem('a chunk fails its CRC; more than one MCAP file, so '
+                              'the messages after it are not read')
+            return
+        messages, recovery = self._read_record_by_record(mcap)
+        for topic in self.topics.values():
+            topic.count = 0
+        for name, _, _, msgtype in messages:
+            self.topics.setdefault(name, BagTopic(name, msgtype)).count += 1
+        self._recovered = [(name, log_time, data) for name, log_time, data, _ in messages]
+        self._reader.close()
+        self._reader = None
+        said = self._crc_failed_said(recovery)
+        if not recovery.complete or recovery.skipped:
+            said += f'; {self._recovery_said(recovery, len(messages))}'
+        self._add_problem(said)
 
     def _mcap_file(self) -> Path | None:
         if self.bag.suffix == '.mcap' and self.bag.is_file():
@@ -112,6 +185,11 @@ class BagSource:
 
     def _recover(self, error: Exception) -> None:
         refused = f'{self.bag}: cannot open as a rosbag2 bag (MCAP or sqlite3): {error}'
+        from inhand_common.mcap_integrity import check_sqlite3
+        for database in self._storage_files('.db3'):
+            sqlite = check_sqlite3(database)
+            if sqlite.damaged:
+                refused += f' ({sqlite.said()})'
         mcap = self._mcap_file()
         if mcap is None:
             raise BagError(refused) from None
@@ -128,13 +206,44 @@ class BagSource:
         self._recovered = [(name, log_time, data) for name, log_time, data, _ in messages]
         if messages:
             self.start_ns, self.end_ns = messages[0][1], messages[-1][1]
+        if report.crc_failed:
+            first = min(chunk.start_ns for chunk in report.crc_failed)
+            self.start_ns = min(self.start_ns, first) if messages else first
+            self.end_ns = max(self.end_ns, max(chunk.end_ns for chunk in report.crc_failed))
         if not report.complete or report.skipped:
             self.problem = (f'{str(error).rstrip(".")}; '
                             f'{self._recovery_said(report, len(messages))}, recorded QoS '
                             'is not')
+        if report.crc_failed:
+            self._add_problem(self._crc_failed_said(report))
+
+    def _crc_failed_said(self, report: RecoveryReport) -> str:
+        """One line: the chunks that failed their CRC and the messages left out with them
+        (topic: count and time span, seconds into the bag)."""
+        from inhand_common.mcap_integrity import describe_messages
+        chunks = report.crc_failed
+        listed = [m for chunk in chunks for m in chunk.messages]
+        every = all(chunk.listed_all for chunk in chunks)
+        where = ', '.join(f'byte {chunk.offset}' for chunk in chunks[:5]) + \
+            (f' and {len(chunks) - 5} more' if len(chunks) > 5 else '')
+        said = (f'{len(chunks)} chunk{"s" if len(chunks) != 1 else ""} '
+                f'fail{"s" if len(chunks) == 1 else ""} {"its" if len(chunks) == 1 else "their"}'
+                f' CRC (at {where}); left out {"" if every else "at least "}{len(listed)} '
+                f'message{"s" if len(listed) != 1 else ""}')
+        if listed:
+            said += f': {describe_messages(listed, self.start_ns)}'
+        unlisted = [chunk for chunk in chunks if not chunk.listed_all]
+        if unlisted:
+            said += ' (and what else ' + ', '.join(
+                f'the chunk at byte {chunk.offset} held from '
+                f'{(chunk.start_ns - self.start_ns) * 1e-9:.2f} to '
+                f'{(chunk.end_ns - self.start_ns) * 1e-9:.2f} s' for chunk in unlisted[:3]) + \
+                ': too damaged to list)'
+        return said
 
     @staticmethod
-    def _read_record_by_record(mcap: Path) -> tuple[list[tuple[str, int, bytes, str]], object]:
+    def _read_record_by_record(mcap: Path) -> tuple[list[tuple[str, int, bytes, str]],
+                                                     RecoveryReport]:
         """(relative topic, log time, data, type) of every readable message in time order,
         and the RecoveryReport. ValueError if the file is not MCAP."""
         from inhand_common.mcap_recovery import RecoveryReport, recover_mcap
@@ -195,17 +304,20 @@ class BagSource:
         """After rosbags stopped at a damaged record: the messages after the ones given
         (stamps above ``last``, and those at ``last`` past the first ``at_last``)."""
         problem = f'{type(error).__name__}: {error}'
+        self.problem = self._opened_problem   # what opening found, then this pass's
         mcap = self._mcap_file()
         if mcap is None:
-            self.problem = problem
+            self._add_problem(problem)
             return
         try:
             messages, report = self._read_record_by_record(mcap)
         except ValueError:
-            self.problem = problem
+            self._add_problem(problem)
             return
         wanted = [m for m in messages if m[0] in topics and (start_ns is None or m[1] >= start_ns)]
-        self.problem = f'{problem}; {self._recovery_said(report, len(wanted))}'
+        self._add_problem(f'{problem}; {self._recovery_said(report, len(wanted))}')
+        if report.crc_failed:
+            self._add_problem(self._crc_failed_said(report))
         seen_at_last = 0
         for name, log_time, data, _ in wanted:
             if last is not None and log_time < last:

@@ -13,7 +13,7 @@ defaults, 900 of 900 with this profile. The profile gives:
   1280x720 rgb8 camera, or the map's cloud, in flight at once;
 * UDPv4 with 4 MiB socket buffers (``UDP_BUFFER``) for other hosts; Linux caps them at
   ``net.core.rmem_max`` / ``wmem_max`` (often 208 KiB: raise them with sysctl on both
-  hosts, as the README's stereo section says).
+  hosts, as docs/stereo.md says).
 
 Only the *publisher's* segment counts: a camera driver in its own process must run with
 this profile too (``export FASTRTPS_DEFAULT_PROFILES_FILE=...`` with the file

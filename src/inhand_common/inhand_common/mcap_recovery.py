@@ -11,21 +11,26 @@ fits and is followed by another (the next chunk), and inside an uncompressed chu
 next message record of a known channel, stamped within the chunk's time range, that is
 followed by another (a bundled bag is one chunk, so skipping whole chunks alone would lose
 it all). A compressed chunk that does not decompress is skipped whole. A record cut short
-by the end of the file ends the walk. ``RecoveryReport`` says what was skipped.
+by the end of the file ends the walk. A chunk whose CRC is set and does not match its
+records is left out whole (one CRC per chunk cannot tell which of its messages is damaged);
+the messages it holds, as far as they can be listed, are in ``RecoveryReport.crc_failed``.
+``RecoveryReport`` says what was skipped.
 """
 
 from __future__ import annotations
 
 import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ['McapMessage', 'RecoveryReport', 'recover_mcap']
+__all__ = ['CrcFailedChunk', 'McapMessage', 'RecoveryReport', 'recover_mcap']
 
 MAGIC = b'\x89MCAP0\r\n'
 OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_FOOTER, OP_DATA_END = 0x03, 0x04, 0x05, 0x06, \
     0x02, 0x0F
+OP_MESSAGE_INDEX = 0x07
 KNOWN_OPCODES = frozenset(range(0x01, 0x10))   # header .. data end (MCAP v0)
 MESSAGE_HEADER = 22                            # channel id, sequence, log and publish times
 COMPRESSIONS = ('', 'lz4', 'zstd')
@@ -40,6 +45,30 @@ class McapMessage:
 
 
 @dataclass
+class CrcFailedChunk:
+    """A chunk left out because its records do not match its CRC: where it is, its time
+    range, and (topic, log time) of the messages in it: from the message index records that
+    follow the chunk (outside it, so not damaged with it) when the file has them, else from
+    the chunk's own records as far as they parse (``listed_all`` False when they do not
+    all parse)."""
+
+    offset: int
+    start_ns: int
+    end_ns: int
+    compression: str
+    messages: list[tuple[str, int]] = field(default_factory=list)
+    listed_all: bool = True
+    indexed: list[tuple[int, int]] = field(default_factory=list)   # (channel id, log time)
+
+    def resolve_index(self, channels: dict[int, tuple[str, int]]) -> None:
+        """Take the message index's listing (channel ids named by ``channels``)."""
+        if self.indexed:
+            self.messages = sorted((channels.get(channel, (f'channel {channel}', 0))[0], stamp)
+                                   for channel, stamp in self.indexed)
+            self.listed_all = True
+
+
+@dataclass
 class RecoveryReport:
     messages: int = 0
     bytes_read: int = 0
@@ -47,6 +76,7 @@ class RecoveryReport:
     complete: bool = False
     stopped_because: str = ''
     skipped: list[tuple[int, int]] = field(default_factory=list)   # (file offset, bytes)
+    crc_failed: list[CrcFailedChunk] = field(default_factory=list)
 
     def skipped_summary(self) -> str:
         """One line: how much was skipped where ('' when nothing was)."""
@@ -86,6 +116,7 @@ class _Walker:
         self.report = report
         self.schemas: dict[int, str] = {}
         self.channels: dict[int, tuple[str, int]] = {}
+        self.last_failed: CrcFailedChunk | None = None   # the chunk just read, if it failed
 
     def records(self, buf: bytes, pos: int, end: int, top_level: bool,
                 offset: int = 0, times: tuple[int, int] | None = None) -> Iterator[McapMessage]:
@@ -217,6 +248,12 @@ class _Walker:
                 yield McapMessage(topic, self.schemas.get(schema_id, ''), log_time, body[22:])
         elif opcode == OP_CHUNK:
             yield from self._chunk(body, offset)
+        elif opcode == OP_MESSAGE_INDEX and self.last_failed is not None:
+            channel_id, size = struct.unpack_from('<HI', body, 0)
+            if 6 + size > len(body) or size % 16:
+                raise ValueError('message index runs past its record')
+            self.last_failed.indexed.extend((channel_id, log_time) for log_time, _ in
+                                            struct.iter_unpack('<QQ', body[6:6 + size]))
 
     def _partial_chunk(self, body: bytes, offset: int) -> Iterator[McapMessage]:
         try:
@@ -233,12 +270,19 @@ class _Walker:
             return  # the last record is the one cut short
 
     def _chunk(self, body: bytes, offset: int | None) -> Iterator[McapMessage]:
-        start, end_time, size, _ = struct.unpack_from('<QQQI', body, 0)
+        start, end_time, size, crc = struct.unpack_from('<QQQI', body, 0)
         compression, pos = _string(body, 28)
         (records_length,) = struct.unpack_from('<Q', body, pos)
         records_start = pos + 8
         if records_start + records_length > len(body):
             raise ValueError('chunk records run past the chunk')
+        self.last_failed = None
+        if crc and offset is not None and not self._crc_matches(
+                body[records_start:records_start + records_length], compression, crc):
+            self.last_failed = self._list_failed(body, records_start, records_length,
+                                                 compression, offset, (start, end_time))
+            self.report.crc_failed.append(self.last_failed)
+            return
         if compression == '':
             # Damage inside is looked for record by record (offsets: the file's).
             yield from self.records(body, records_start, records_start + records_length,
@@ -250,6 +294,43 @@ class _Walker:
         except Exception as error:   # zstd, lz4: each its own error type; ours: unsupported
             raise ValueError(f'chunk does not decompress: {error}') from None
         yield from self.records(records, 0, len(records), top_level=False)
+
+
+    @staticmethod
+    def _crc_matches(records: bytes, compression: str, crc: int) -> bool:
+        try:
+            raw = _decompress(records, compression, 0)
+        except Exception:   # zstd, lz4: each its own error type; ours: unsupported
+            return False
+        return zlib.crc32(raw) == crc
+
+    def _list_failed(self, body: bytes, records_start: int, records_length: int,
+                     compression: str, offset: int, times: tuple[int, int]) -> CrcFailedChunk:
+        """The chunk that failed its CRC at file offset ``offset`` (its body's), with the
+        messages its records hold as far as they parse; none of them is given."""
+        failed = CrcFailedChunk(offset - 9, times[0], times[1], compression)
+        lister = _Walker(RecoveryReport())
+        lister.schemas, lister.channels = dict(self.schemas), dict(self.channels)
+        try:
+            if compression == '':
+                found = lister.records(body, records_start, records_start + records_length,
+                                       top_level=False, offset=offset, times=times)
+            else:
+                records = _decompress(body[records_start:records_start + records_length],
+                                      compression, 0)
+                found = lister.records(records, 0, len(records), top_level=False)
+            for message in found:
+                failed.messages.append((message.topic, message.log_time))
+        except Exception:   # damaged past listing (or not decompressing): what was listed
+            failed.listed_all = False
+        if lister.report.skipped:
+            failed.listed_all = False
+        # schemas and channels the chunk defines still name the messages of later chunks
+        for channel, known in lister.channels.items():
+            self.channels.setdefault(channel, known)
+        for schema, name in lister.schemas.items():
+            self.schemas.setdefault(schema, name)
+        return failed
 
 
 def recover_mcap(path: str | Path, report: RecoveryReport) -> Iterator[McapMessage]:
@@ -269,3 +350,27 @@ def recover_mcap(path: str | Path, report: RecoveryReport) -> Iterator[McapMessa
             report.stopped_because = 'the file ends without its footer'
     except (EOFError, ValueError, struct.error) as error:
         report.stopped_because = str(error)
+    if any(chunk.indexed for chunk in report.crc_failed):
+        _summary_channels(data, report.bytes_read, walker.channels)
+        for chunk in report.crc_failed:
+            chunk.resolve_index(walker.channels)
+
+
+def _summary_channels(data: bytes, pos: int, channels: dict[int, tuple[str, int]]) -> None:
+    """Channels of the summary section after ``pos`` (the data section's end) that the
+    data section did not define (e.g. only inside a chunk that failed its CRC)."""
+    while pos + 9 <= len(data):
+        opcode = data[pos]
+        (length,) = struct.unpack_from('<Q', data, pos + 1)
+        if opcode not in KNOWN_OPCODES or pos + 9 + length > len(data):
+            return
+        if opcode == OP_CHANNEL:
+            try:
+                channel_id, schema_id = struct.unpack_from('<HH', data, pos + 9)
+                topic, _ = _string(data[pos + 9:pos + 9 + length], 4)
+            except (ValueError, struct.error):
+                return
+            channels.setdefault(channel_id, (topic, schema_id))
+        if opcode == OP_FOOTER:
+            return
+        pos += 9 + length

@@ -14,7 +14,7 @@ __all__ = ['DEFAULT_OBJECT_STATION', 'MAP_FRAME', 'OBJECT_POSE_TOPIC', 'STEREO_F
 # The tracker's transmitter frame (x forward, y right, z down, as the device defines it).
 TRACKER_FRAME = 'polhemus_source'
 # The map frame: the object sensor's body frame in tracked mode, the tracker frame's twin in
-# static mode (see the README's frames).
+# static mode (see docs/mapping.md, frames).
 MAP_FRAME = 'object'
 # The left camera of the stereo pair, optical axes (z forward, x right, y down).
 STEREO_FRAME = 'stereo_left_optical'

@@ -61,6 +61,12 @@ class BagMessages:
         return self.source.problem
 
     @property
+    def checked(self) -> list[str]:
+        """What the integrity check on open could check, per file (MCAP CRCs, sqlite3
+        quick_check); damage it found is in ``problem``."""
+        return self.source.checked
+
+    @property
     def start_ns(self) -> int:
         return self.source.start_ns
 
@@ -90,7 +96,8 @@ class BagRegistration:
         self.registrar = config.make_registrar()
         self.topics = config.finger_topics
         self.object_topic = config.object_topic
-        self.report = {'messages': 0, 'truncated': None, 'bag_start': None, 'bag_end': None}
+        self.report = {'messages': 0, 'truncated': None, 'bag_start': None, 'bag_end': None,
+                       'checked': []}
         self.raw: list[tuple[np.ndarray, np.ndarray]] | None = [] if keep_raw else None
 
     def __iter__(self):
@@ -118,6 +125,7 @@ class BagRegistration:
                            source.start_ns, time.monotonic() - started, force=True)
                 bar.close()
             report['truncated'] = source.problem
+            report['checked'] = list(source.checked)
             report['expected_messages'] = source.total
         yield self._as_published(*self.registrar.finish())
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from inhand_mapping.fusion import fuse
+from inhand_mapping.fusion import ENTROPY_POOLING, ENTROPY_RADIUS, fuse
 from inhand_mapping.occupancy import OccupancyGrid
 
 if TYPE_CHECKING:     # mapping_config builds on the maps, not the other way round
@@ -30,9 +30,10 @@ class GlobalMap:
         return cls(touch, config.fusion, config.entropy_radius, config.log_odds_clamp,
                    config.entropy_pooling)
 
-    def __init__(self, touch: OccupancyGrid, fusion: str = 'none', entropy_radius: int = 0,
+    def __init__(self, touch: OccupancyGrid, fusion: str = 'none',
+                 entropy_radius: int = ENTROPY_RADIUS,
                  clamp: tuple[float, float] = (-np.inf, np.inf),
-                 entropy_pooling: str = 'linear'):
+                 entropy_pooling: str = ENTROPY_POOLING):
         self.touch = touch
         self.fusion, self.entropy_radius, self.clamp = fusion, entropy_radius, clamp
         self.entropy_pooling = entropy_pooling

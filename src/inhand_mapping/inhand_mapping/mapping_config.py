@@ -25,7 +25,7 @@ from inhand_common.parameters import (
     validate,
 )
 from inhand_common.ros_names import DEFAULT_OBJECT_STATION, station_pose_topic
-from inhand_mapping.fusion import FUSIONS, POOLINGS
+from inhand_mapping.fusion import ENTROPY_POOLING, ENTROPY_RADIUS, FUSIONS, POOLINGS
 from inhand_mapping.occupancy import DISTANCES, TOUCH_MODELS, GridSpec, OccupancyGrid, SensorModel
 from inhand_mapping.registration import Registrar
 from inhand_mapping.tip_offsets import (
@@ -126,12 +126,14 @@ OCCUPANCY_PARAMETERS = (
     ParamSpec('fusion', 'none', 'Global map from the local maps (fusion.py): none (touch '
               'only), product (eq. 9) or entropy (eqs. 10-12) with the vision map of '
               'vision/cloud', choices=FUSIONS),
-    ParamSpec('entropy_radius', 0, 'entropy fusion: 0 weighs each sensor by its whole map\'s '
-              'entropy (the paper); r > 0 by the entropy of the (2r+1)^3 cells around each '
-              'cell', minimum=0, maximum=10),
-    ParamSpec('entropy_pooling', 'linear', 'entropy fusion: linear (eq. 12, the weighted sum '
-              'of probabilities) or log (the weighted sum of log-odds, the stronger sensor '
-              'at full weight)', choices=POOLINGS),
+    # The entropy form's defaults are the one that measured best (fusion.py); eq. 12 as the
+    # paper writes it is entropy_radius 0 with entropy_pooling linear.
+    ParamSpec('entropy_radius', ENTROPY_RADIUS, 'entropy fusion: 0 weighs each sensor by '
+              'its whole map\'s entropy (the paper); r > 0 by the entropy of the (2r+1)^3 '
+              'cells around each cell', minimum=0, maximum=10),
+    ParamSpec('entropy_pooling', ENTROPY_POOLING, 'entropy fusion: log (the weighted sum of '
+              'log-odds, the stronger sensor at full weight) or linear (eq. 12 as written, '
+              'the weighted sum of probabilities)', choices=POOLINGS),
     ParamSpec('output_dir', 'maps', 'Folder occupancy/save writes <map_name>.npz and .ply to'),
     ParamSpec('map_name', 'map', 'File name stem of saved maps'),
     ParamSpec('initial_map', '', 'A map saved before (NPZ) to start from, e.g. after a crash; '

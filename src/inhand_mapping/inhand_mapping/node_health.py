@@ -111,8 +111,23 @@ class OccupancyActivity:
     publishers: int = 0      # writers of registration/points matched now
     touched_cells: int = 0   # in the latest published map
     occupied_cells: int = 0
+    occupied_on_faces: int = 0   # occupied cells in the grid's outermost layer
     vision_cells: int = 0    # cells of the latest vision map (0: none)
     textured: bool = False   # colours of occupancy/textured held for the save
+
+
+def outside_note(outside: int, points: int, occupied_on_faces: int, where: str) -> str:
+    """What the points outside the workspace mean. With the occupied cells clear of the
+    workspace's faces the object lies inside it, and those points are fingertips away from
+    the object (lifts, the carry between strokes, a re-grasp): counted, not a problem. With
+    occupied cells on its faces the map may be cut off."""
+    workspace = f'the workspace {where}'.rstrip()
+    if not occupied_on_faces:
+        return (f'{outside} of {points} points outside {workspace}: fingertips away from '
+                'the object (its occupied cells keep clear of the faces)')
+    return (f'{outside} of {points} points fell outside {workspace} and '
+            f'{occupied_on_faces} occupied cells lie on its faces: the object may be cut off '
+            '(workspace_size or workspace_centre too small for this object?)')
 
 
 class OccupancyHealth:
@@ -135,11 +150,10 @@ class OccupancyHealth:
             state = 'mapping'
         else:
             state = 'idle (no points)'
-        if new['outside']:
-            problems.add(WARN, 'outside',
-                         f"{new['outside']} of {new['points_received']} points fell outside the "
-                         f'workspace {window} ({self.workspace}): workspace_size or '
-                         'workspace_centre too small for this object?')
+        if new['outside'] and activity.occupied_on_faces:
+            problems.add(WARN, 'outside', outside_note(new['outside'], new['points_received'],
+                                                       activity.occupied_on_faces,
+                                                       f'{window} ({self.workspace})'))
         if new['invalid']:
             problems.add(WARN, 'invalid', f"{new['invalid']} points with NaN or infinite values "
                          f'ignored {window}')

@@ -9,10 +9,10 @@ with ``d`` the distance from ``x`` to the cell: to its nearest point by default
 (``distance_to='cell'``: 0 inside, so a measurement inside a cell supports it fully and the
 Gaussian of the sensor noise only matters for neighbours), or to its centre
 (``distance_to='centre'``, the paper read literally: then a measurement more than 2.5 mm
-from the centre of its own 5 mm cell lowers it; see the README).
+from the centre of its own 5 mm cell lowers it; see docs/mapping.md).
 
 Update (paper eq. 4) in log-odds, with ``P(Z | not O)`` a constant ``c`` (the paper does not
-state it; the README derives 0.45 from the paper's thresholds):
+state it; docs/mapping.md derives 0.45 from the paper's thresholds):
 
     l <- clamp(l + w log(L / c), l_min, l_max),    l = log(p / (1 - p)),
 
@@ -138,10 +138,18 @@ class GridSpec:
         """Which map-frame points (N, 3) fall in a cell of the grid."""
         return self.holds(self._cell_coordinates(points))
 
+    def on_faces(self, points: ArrayLike) -> Bools:
+        """Which map-frame points (N, 3) fall in the grid's outermost layer of cells: a map
+        whose occupied cells reach it may be cut off by a workspace too small."""
+        ijk = self._cell_coordinates(points)
+        last = self.cells_per_axis - 1
+        faces: Bools = self.holds(ijk) & np.any((ijk == 0) | (ijk == last), axis=1)
+        return faces
+
 
 @dataclass(frozen=True)
 class SensorModel:
-    """Sensor model and update parameters (defaults: the paper's, and the README's choice)."""
+    """Sensor model and update parameters (defaults: the paper's, and docs/mapping.md's choice)."""
 
     sigma: float = 0.002
     p_z_given_not_occupied: float = 0.45

@@ -9,7 +9,7 @@ cannot tell these apart from a contact by the path alone (a set-down at 0.1 m/s 
 as a 10 cm/s stroke), but the map around them can: the object's inside is never visited,
 so the evidence piles up in a sheet, and the cells of the layer above that sheet get less
 of it than the sheet itself. Measured on sessions of our simulator with other hands (the
-README's "touch map on other hands"), 1,105 of 1,573 wrong cells lay 5-10 mm off the
+docs/quality.md, "Other hands"), 1,105 of 1,573 wrong cells lay 5-10 mm off the
 surface, and all but 0.7% of those had a neighbour nearer the surface with more evidence
 (three times as much, in the median).
 

@@ -1,6 +1,6 @@
 """Simulated pivot sessions: each finger in turn pivots about its pad resting in a dimple.
 
-What a researcher does on the bench before a session (README, "Real fingers"), with a
+What a researcher does on the bench before a session (docs/mapping.md, "Real fingers"), with a
 known tip offset, so pivot calibration (inhand_mapping/pivot_calibration.py) can be
 checked against the truth. Per finger, in ``FINGERS`` order:
 

@@ -52,6 +52,7 @@ from typing import Protocol
 import numpy as np
 
 from inhand_common.ground_truth import truth_path, write_truth
+from inhand_common.mcap_integrity import stamp_bag_crcs
 from inhand_common.ros_names import STEREO_FRAME, TRACKER_FRAME, station_pose_topic
 from inhand_common.rotations import (
     euler_zyx_to_quaternion,
@@ -130,7 +131,7 @@ class SessionSettings:
     # view (from the tracker's -y side, 34 degrees up).
     camera_azimuth_deg: float | None = None
     camera_elevation_deg: float | None = None
-    # Real fingers (README, "Real fingers"): the sensor on the nail, the pad a ball touching
+    # Real fingers (docs/mapping.md, "Real fingers"): the sensor on the nail, the pad a ball touching
     # the surface. tip_offset_mm: the pad centre in the sensor's frame, one x, y, z for
     # every finger or one per finger (None: the sensor is the contact point, as in the
     # bundled bags); pad_radius_mm: the pad ball's radius; finger_roll_deg: how far the
@@ -557,6 +558,7 @@ def write_bag(session: PoseRecording, path, progress: Callable[[float], None] | 
                              encode_pose_stamped(sec, nsec, FRAME_ID, poses[s][k]))
             if progress is not None and (k % step == 0 or k == n_frames - 1):
                 progress((k + 1) / n_frames)
+    stamp_bag_crcs(path)        # rosbags writes no CRCs: damage would go unnoticed
     return path
 
 

@@ -5,7 +5,10 @@ The images are taken in the tracker frame (through ``camera_pose``); the map fra
 stamp is known, by the fingertips' rules (:meth:`Registrar.object_pose_at`: exact stamp,
 interpolation across short gaps, never extrapolated). :class:`ShotPlacer` holds a shot
 until the object poses around its stamp have come; in static mode the map frame is the
-tracker frame and every shot is placed at once. The node and the bag tools share it.
+tracker frame and every shot is placed at once. The graph's mode is the registration
+node's: until the node knows it, the placer has no registrar and holds every shot
+(:func:`waiting_advice` says why a shot waits, and what to do). The node and the bag tools
+share it.
 """
 
 from __future__ import annotations
@@ -28,9 +31,10 @@ from inhand_stereo.stereo_pipeline import StereoShot, pose_vector
 from inhand_stereo.texture import CellTexture, map_to_rectified
 from inhand_stereo.vision_model import VisionMap
 
-__all__ = ['PlacedShot', 'ShotPlacer', 'UnplacedShot']
+__all__ = ['PlacedShot', 'ShotPlacer', 'UnplacedShot', 'waiting_advice']
 
 MAX_HELD = 4   # shots waiting for object poses; an older one is given up when more come
+MAX_EARLY_POSES = 100_000   # object poses kept while the mode is not known (7 min at 240 Hz)
 
 
 class PlacedShot(NamedTuple):
@@ -88,15 +92,40 @@ class UnplacedShot(NamedTuple):
 
 
 class ShotPlacer:
-    """Places shots with the object poses of a :class:`Registrar` (its mode and max_gap)."""
+    """Places shots with the object poses of a :class:`Registrar` (its mode and max_gap).
 
-    def __init__(self, registrar: Registrar):
+    ``registrar`` None: the graph's mode is not known yet; shots are held (the newest
+    :data:`MAX_HELD`), and so are the object poses (the newest :data:`MAX_EARLY_POSES`: a
+    fast replay sends them all before the mode is known), until :meth:`use` gives one.
+    """
+
+    def __init__(self, registrar: Registrar | None):
         self.registrar = registrar
         self.held: list[StereoShot] = []
+        self.object_poses = 0
+        self._early_poses: list[tuple[float, ArrayLike, ArrayLike]] = []
+
+    @property
+    def mode(self) -> str | None:
+        return None if self.registrar is None else self.registrar.mode
+
+    def use(self, registrar: Registrar) -> list[PlacedShot | UnplacedShot]:
+        """The graph's mode is known: place the held shots with ``registrar`` and the
+        object poses that came before it (ignored in static mode)."""
+        self.registrar = registrar
+        for t, position, quaternion in self._early_poses:
+            registrar.add_object_pose(t, position, quaternion)
+        self._early_poses = []
+        return self._decide()
 
     def add_object_pose(self, t: float, position: ArrayLike, quaternion: ArrayLike
                         ) -> list[PlacedShot | UnplacedShot]:
         """One object pose (seconds, m, x y z w); the held shots it decides."""
+        self.object_poses += 1
+        if self.registrar is None:
+            self._early_poses.append((t, position, quaternion))
+            del self._early_poses[:-MAX_EARLY_POSES]
+            return []
         self.registrar.add_object_pose(t, position, quaternion)
         return self._decide()
 
@@ -106,7 +135,9 @@ class ShotPlacer:
         decided: list[PlacedShot | UnplacedShot] = []
         while len(self.held) > MAX_HELD:
             old = self.held.pop(0)
-            decided.append(UnplacedShot(old, 'no object pose came at or after its stamp'))
+            decided.append(UnplacedShot(old, "the graph's mode was not known yet"
+                                        if self.registrar is None else
+                                        'no object pose came at or after its stamp'))
         return decided + self._decide()
 
     def finish(self) -> list[PlacedShot | UnplacedShot]:
@@ -118,6 +149,8 @@ class ShotPlacer:
         return decided
 
     def _decide(self) -> list[PlacedShot | UnplacedShot]:
+        if self.registrar is None:
+            return []
         decided: list[PlacedShot | UnplacedShot] = []
         still: list[StereoShot] = []
         for shot in self.held:
@@ -131,3 +164,26 @@ class ShotPlacer:
                 decided.append(PlacedShot(shot, pose_vector(where.rotation, where.position)))
         self.held = still
         return decided
+
+
+def waiting_advice(mode: str | None, seconds: float, object_poses: int, object_topic: str,
+                   mode_source: str) -> tuple[str, str]:
+    """Why a stereo pair has waited ``seconds`` to be placed on the object, and what to do:
+    (a short reason, one log line). ``mode``: the graph's mode, None while it is not
+    known; ``object_poses``: how many object poses came so far; ``mode_source``: where the
+    mode is looked for, or where it came from."""
+    waited = f'a stereo pair has waited {seconds:.0f} s to be placed on the object'
+    if mode is None:
+        return 'mode not known', (
+            f"{waited}: the graph's mode is not known: {mode_source}. Start the "
+            "registration node (it decides the mode), or set this node's mode parameter "
+            'to static or tracked')
+    if object_poses == 0:
+        return 'no object pose', (
+            f'{waited}: the graph is in tracked mode ({mode_source}) and no object pose has '
+            f'come on {object_topic}. Is the object sensor connected and named object_name? '
+            'If the object does not move, run the graph in static mode (registration_node '
+            'mode:=static)')
+    return 'object poses behind', (
+        f'{waited}: the object poses on {object_topic} have not reached its stamp yet (the '
+        'tracker and the camera stamp by different clocks? a tracker stream that stopped?)')

@@ -24,11 +24,14 @@ from inhand_stereo.disparity import DISPARITY_PARAMETERS, DisparityConfig
 from inhand_stereo.scene_segmentation import SegmentationConfig
 from inhand_stereo.vision_model import NOISE_MODELS, UPDATES, VisionModel
 
-__all__ = ['IDENTITY_POSE', 'STEREO_NODE', 'STEREO_PARAMETERS', 'StereoConfig',
+__all__ = ['FOLLOW_REGISTRATION', 'IDENTITY_POSE', 'STEREO_NODE', 'STEREO_PARAMETERS', 'StereoConfig',
            'camera_pose_from', 'load_stereo_config']
 
 STEREO_NODE = 'stereo_node'
 IDENTITY_POSE = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+# The stereo node's default mode: the registration node's, so the graph has one mode. The
+# bag tools take it from the registration's parameters (bag_stereo_shot.py).
+FOLLOW_REGISTRATION = 'follow'
 
 
 def _shared(table: tuple[ParamSpec, ...], *names: str) -> list[ParamSpec]:
@@ -67,7 +70,11 @@ STEREO_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec('support_fraction', 0.2, 'A plane holding this share of the workspace\'s '
               'points, with the rest on one side, is a support and is removed',
               minimum=0.01, maximum=1.0),
-    *_shared(REGISTRATION_PARAMETERS, 'mode', 'object_name', 'max_gap', 'frame_prefix',
+    ParamSpec('mode', FOLLOW_REGISTRATION, "follow: the graph's mode, the registration "
+              "node's (asked from the node that publishes registration/object_frame); "
+              'static or tracked: this mode, whatever the registration node says (a warning '
+              'when they differ)', choices=(FOLLOW_REGISTRATION, 'static', 'tracked')),
+    *_shared(REGISTRATION_PARAMETERS, 'object_name', 'max_gap', 'frame_prefix',
              'tracker_frame', 'map_frame'),
     *_shared(OCCUPANCY_PARAMETERS, 'workspace_size', 'resolution', 'workspace_centre',
              'clamp_min', 'clamp_max'),
@@ -92,7 +99,7 @@ class StereoConfig:
     disparity: DisparityConfig
     camera_pose: NDArray[np.float64]     # (7,) x y z qx qy qz qw, quaternion normalised
     point_step: int
-    mode: str
+    mode: str                            # FOLLOW_REGISTRATION, 'static' or 'tracked'
     object_name: str
     max_gap: float
     grid: GridSpec                       # the occupancy grid (the vision map's too)

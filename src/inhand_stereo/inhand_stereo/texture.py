@@ -1,55 +1,53 @@
 """Colour for the map's occupied cells from the rectified left image (``occupancy/textured``).
 
-A cell is textured only where the camera saw *that cell's* surface. Each occupied cell
-centre goes from the map frame ``object`` into the rectified left camera (map -> tracker
-with the object pose, tracker -> ``stereo_left_optical`` with the inverse camera pose, raw
--> rectified with ``R_left``) and is projected with the rectified ``P``. Then:
+A cell is textured where the camera saw *that cell's* surface. Each occupied cell centre
+goes from the map frame ``object`` into the rectified left camera (map -> tracker with the
+object pose, tracker -> ``stereo_left_optical`` with the inverse camera pose, raw ->
+rectified with ``R_left``) and is projected with the rectified ``P``. Then:
 
 1. *In front and inside*: depth > 1 mm and the centre's pixel inside the image.
 2. *Seen at the cell* (the depth rule): the cell's footprint, its face seen at its depth
-   (``footprint`` x ``f * resolution / z`` pixels a side), is sampled on a fixed
-   ``samples x samples`` grid (5 x 5). Each sample's stereo depth puts a measured surface
-   point on the pixel's ray, and the sample counts when that point lies *inside the cell*:
-   the measured depth is then within about one cell (0.87 at most) of the cell's depth,
-   and the point is this cell's surface, not its neighbour's. Grown by ``margin`` (a
-   quarter cell) along the line of sight for the depth noise of stereo, but a point in the
-   grown part that lies in another occupied cell is that cell's surface and does not
-   count. A cell on the back side is a whole object thickness behind the measured surface,
-   an occluded cell is behind another surface, a cell the camera sees through is in front
-   of it, and a cell right behind the seen surface (the back of a thin part, behind a
-   silhouette or a crease) does not contain it: none of these gets samples. At least
-   ``min_fraction`` (0.12: 3 of 25) of the samples must count, so that a stray depth (a
-   stereo mismatch) does not paint a cell on its own.
-   **No stereo depth is no evidence**: samples without a measurement (NaN, inf) never
-   count, so a cell whose footprint has no depth is not textured (conservative: the
-   image alone cannot tell the front of an object from its back).
+   (``f * resolution / z`` pixels a side), is sampled on a fixed ``samples x samples``
+   grid (7 x 7). Each sample's stereo depth puts a measured surface point on the pixel's
+   ray, and the sample counts when that point lies in the cell's *window*: the cell, grown
+   along the line of sight by ``window.in_front`` cells towards the camera (0.25) and
+   ``window.behind`` cells away from it (1.0), and across it by ``window.beside`` (0.25),
+   unless the point lies in *another occupied cell*: then it is that cell's surface. A
+   touch map's cells do not sit on the surface the way a mesh's do: a hand that hovers,
+   trembles or presses leaves cells a few millimetres off it, and the seen surface then
+   passes beside their centres or through a free neighbour; the window takes those in. A
+   cell on the back side is a whole object thickness behind the measured surface, an
+   occluded cell is behind another surface, and the back of a thin part right behind its
+   front has the front's occupied cells in between: none of these gets samples. At least
+   ``min_samples`` (2 of 49) must count, so that a stray depth (a stereo mismatch) does not
+   paint a cell on its own. **No stereo depth is no evidence**: a sample without a
+   measurement (NaN, inf) takes the depth of the nearest pixel with one within ``fill``
+   (2 px: stereo leaves thin gaps at edges), and otherwise never counts (the image alone
+   cannot tell the front of an object from its back).
 3. *Facing the camera* (the orientation rule, ``orientation``, off by default): the cell's
    outward direction estimated as its centre minus the centroid of the occupied cells
    around it (``'local'``: a cube of ``2 * orientation_radius + 1`` cells, from
    summed-volume tables; ``'centroid'``: all occupied cells, exact for a sphere); a cell
    whose outward direction points away from the camera is not textured.
 
-What each rule does, measured on ``inhand_sim``'s cat from four sides (legs, ears and tail:
-thin parts and self-occlusion; ``test/benchmarks/bench_texture.py``): the depth rule
-textures 90 % of the seen surface area and no hidden cell (with 1 mm depth noise and 2 %
-wild depths: one, beside the seen surface). The first version of it, "measured depth
-within one cell of the cell's depth" over the footprint, textured as much but painted 6 to
-8 hidden cells beside the seen surface, and on a 6 mm plate the back cells right behind
-the front ones (211 of 224; the cell test: none). The orientation rule on top removes that
-one noisy cell and nothing else (nothing else is left), and costs 8 (local) or 18
-(centroid) points of the seen area, the local one also tripling the time: a shell of
-touched cells says little about which way its surface faces. One sample of 25 instead of
-three textures 97 % but lets wild depths paint 37 hidden cells far from any seen surface.
+The window was chosen on touch sessions of other hands and objects
+(``test/benchmarks/bench_texture_sessions.py``, its ``tune`` set; docs/stereo.md has the
+figures): the cell alone (the rule before) textured 0.70 of the cells the camera saw;
+more in front paints more, and more of the back of thin walls (0.75 cells: 0.86 of the
+seen cells, 1.9 % of the unseen ones painted far from any seen surface); 0.25 in front and
+1 behind: 0.79, 0.8 %. On sessions not used to choose (``report``) 0.65 -> 0.76, back faces
+0.3 -> 0.8 %. On ``inhand_sim``'s cat from four sides with exact cells
+(``bench_texture.py``) it textures 82 % of the seen cells (98 % of the seen area) and no
+hidden cell far from the seen surface; a 6 mm plate's 224 back cells stay unpainted.
 
 The colour is the per-channel median of the samples that count (not one pixel: robust to
 noise and to the edges of occluders). Cells that are not textured get colour 0, as the
-``occupancy/textured`` contract says. No Python loop per cell or pixel: a 10,000-cell map
-on a 640x480 image takes about 9 ms here.
+``occupancy/textured`` contract says. The footprints are read by one compiled loop
+(``texture_kernels.py``): a 10,000-cell map on a 640x480 image in about 15 ms here.
 """
 
 from __future__ import annotations
 
-import functools
 from typing import Literal, NamedTuple, TypeAlias
 
 import numpy as np
@@ -58,8 +56,9 @@ from numpy.typing import ArrayLike, NDArray
 from inhand_common.array_types import Bools, Floats, Matrix3, Points, Vector3
 from inhand_common.rotations import quaternion_to_matrix
 from inhand_stereo.camera_model import CameraModel
+from inhand_stereo.texture_kernels import window_pixels
 
-__all__ = ['CellTexture', 'Orientation', 'Pose', 'Projection', 'facing_camera',
+__all__ = ['CellTexture', 'Orientation', 'Pose', 'Projection', 'Window', 'facing_camera',
            'map_to_rectified', 'project_cells', 'texture_cells']
 
 Pose: TypeAlias = tuple[ArrayLike, ArrayLike]     # (position (3,) m, quaternion (4,) x y z w)
@@ -189,10 +188,32 @@ def _local_outward(centres: Points, resolution: float, radius: int) -> Points:
     return outward
 
 
+# The window around a cell (cells, from its faces) in which a measured point is that cell's
+# surface; chosen on simulated sessions of other hands and objects (docs/stereo.md).
+IN_FRONT = 0.25   # towards the camera: a cell the touch map holds just inside the surface
+BEHIND = 1.0      # away from the camera: a cell the touch map holds just off the surface
+BESIDE = 0.25     # across the line of sight
+SAMPLES = 7       # per side of the footprint: 49 pixels read per cell
+MIN_SAMPLES = 2   # of them in the window: a stray depth alone paints nothing
+FILL = 2.0        # px: a pixel without depth this close to one with depth takes its depth
+
+
+class Window(NamedTuple):
+    """Where a measured point counts as a cell's surface (module doc), in cells beyond the
+    cell's faces: towards the camera, away from it, across the line of sight."""
+
+    in_front: float = IN_FRONT
+    behind: float = BEHIND
+    beside: float = BESIDE
+
+
+WINDOW = Window()
+
+
 def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8],
                   camera: CameraModel, R_left: ArrayLike, camera_pose: Pose, object_pose: Pose,
-                  depth: NDArray[np.floating], *, margin: float | None = None,
-                  samples: int = 5, footprint: float = 1.0, min_fraction: float = 0.12,
+                  depth: NDArray[np.floating], *, window: Window = WINDOW,
+                  samples: int = SAMPLES, min_samples: int = MIN_SAMPLES, fill: float = FILL,
                   orientation: Orientation = 'none', orientation_radius: int = 4
                   ) -> CellTexture:
     """Colour of each occupied cell where the rectified left camera saw it (module doc).
@@ -203,96 +224,72 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     every CameraInfo); ``R_left`` raw -> rectified (CameraInfo's R); ``camera_pose``
     ``stereo_left_optical`` in the tracker frame and ``object_pose`` the map frame in the
     tracker frame, each ``(position, quaternion xyzw)``; ``depth`` (H, W) metres along the
-    rectified optical axis, NaN or inf where stereo measured nothing. Options: ``margin``
-    (m, default a quarter cell, at most one cell), ``samples``, ``footprint``,
-    ``min_fraction`` and ``orientation`` as the module doc says.
-    Returns colours (N, 3) uint8 (0 where not textured) and the textured mask (N,).
+    rectified optical axis, NaN or inf where stereo measured nothing. Options (module doc):
+    ``window``, ``samples`` per side of the footprint, ``min_samples`` in the window,
+    ``fill`` (px) and ``orientation``. Returns colours (N, 3) uint8 (0 where not textured)
+    and the textured mask (N,).
     """
     points = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     _check(image, depth, camera)
-    slack = resolution / 4.0 if margin is None else float(margin)
-    if not resolution > 0.0 or samples < 1 or footprint <= 0.0 or \
-            not 0.0 < min_fraction <= 1.0 or not 0.0 <= slack <= resolution:
-        raise ValueError('resolution and footprint must be > 0, samples >= 1, min_fraction '
-                         'in (0, 1], margin in [0, resolution]')
-    height, width = depth.shape
-    half = resolution / 2.0
-    count = len(points)
-    colours = np.zeros((count, 3), dtype=np.uint8)
-    textured = np.zeros(count, dtype=bool)
-    if count == 0:
-        return CellTexture(colours, textured)
-
+    if not resolution > 0.0 or samples < 1 or not 1 <= min_samples <= samples * samples or \
+            fill < 0.0 or not all(0.0 <= extent <= 2.0 for extent in window):
+        raise ValueError('resolution must be > 0, samples >= 1, min_samples in [1, '
+                         'samples^2], fill >= 0, the window 0-2 cells each way')
+    colours = np.zeros((len(points), 3), dtype=np.uint8)
+    textured = np.zeros(len(points), dtype=bool)
     matrix, offset = map_to_rectified(camera_pose, object_pose, R_left)
-    u, v, z = _project(points, camera.P, matrix, offset)
+    cells, u, v, z = _candidates(points, resolution, camera.P, matrix, offset, depth.shape,
+                                 orientation, orientation_radius)
+    if len(cells) == 0:
+        return CellTexture(colours, textured)
+    ijk, occupied = _lattice(points, resolution, pad=3)   # the kernel looks 3 cells around
+    strides = (np.array(occupied.strides) // occupied.itemsize).astype(np.int64)
+    P = np.asarray(camera.P, dtype=np.float64)
+    inverse = np.linalg.inv(P[:, :3]).astype(np.float64)
+    half = resolution / 2.0
+    pixels = np.empty((len(cells), samples * samples), dtype=np.int64)
+    counts = window_pixels(
+        u, v, z, np.ascontiguousarray(points[cells] @ matrix.T + offset),
+        np.ravel_multi_index(tuple(ijk[cells].T), occupied.shape).astype(np.int64),
+        occupied.reshape(-1), strides, np.ascontiguousarray(matrix, dtype=np.float64),
+        np.ascontiguousarray(depth, dtype=np.float32), P, inverse,
+        np.asarray(inverse @ P[:, 3], dtype=np.float64), float(resolution), int(samples),
+        -half - window.in_front * resolution, half + window.behind * resolution,
+        (0.5 + window.beside) * resolution, float(fill), pixels)
+    seen = counts >= min_samples
+    textured[cells[seen]] = True
+    used = np.arange(samples * samples) < counts[seen, None]
+    owners = np.repeat(np.arange(int(np.count_nonzero(seen))), counts[seen])
+    colours[textured] = _median_colours(image, pixels[seen][used], owners)
+    return CellTexture(colours, textured)
+
+
+def _candidates(points: Points, resolution: float, P: Floats, matrix: Matrix3,
+                offset: Vector3, shape: tuple[int, ...], orientation: Orientation,
+                orientation_radius: int) -> tuple[NDArray[np.intp], Floats, Floats, Floats]:
+    """The cells in front of the camera whose centre's pixel is in the image (and that face
+    it, by ``orientation``): their indices and their projections (u, v, z)."""
+    u, v, z = _project(points, P, matrix, offset)
+    height, width = shape
     column, row = np.floor(u + 0.5), np.floor(v + 0.5)
     candidate = (z > MIN_DEPTH) & (column >= 0) & (column < width) & (row >= 0) & (row < height)
-    if orientation != 'none':
+    if orientation != 'none' and len(points):
         camera_in_map = -matrix.T @ offset
         candidate &= facing_camera(points, resolution, camera_in_map, orientation,
                                    orientation_radius)
     cells = np.flatnonzero(candidate)
-    if len(cells) == 0:
-        return CellTexture(colours, textured)
+    return cells, u[cells], v[cells], z[cells]
 
-    # The footprint: a samples x samples grid at the centres of the sub-squares of the
-    # cell's face seen at its depth (times ``footprint``); fixed, so one array for all.
-    zc = z[cells]
-    steps = ((np.arange(samples) + 0.5) / samples - 0.5) * footprint * resolution
-    cols = np.floor(u[cells, None] + steps * (camera.P[0, 0] / zc)[:, None] + 0.5)
-    rows = np.floor(v[cells, None] + steps * (camera.P[1, 1] / zc)[:, None] + 0.5)
-    valid = (((rows >= 0) & (rows < height))[:, :, None]
-             & ((cols >= 0) & (cols < width))[:, None, :])                 # (K, S, S)
-    cols = np.clip(cols, 0, width - 1)
-    rows = np.clip(rows, 0, height - 1)
-    flat = (rows[:, :, None] * width + cols[:, None, :]).astype(np.intp)  # (K, S, S)
-    measured = np.asarray(depth, dtype=np.float32).reshape(-1)[flat]
-    need = max(1, int(np.ceil(min_fraction * samples * samples)))
-    # A quick necessary condition first (a point inside the cube is within sqrt(3) reach
-    # of its centre, so within that in depth): drops the back and the occluded cells.
-    with np.errstate(invalid='ignore'):
-        valid &= np.abs(measured - zc[:, None, None].astype(np.float32)) <= 1.75 * half + slack
-    keep = np.count_nonzero(valid.reshape(len(cells), -1), axis=1) >= need
-    cells, cols, rows, flat, measured, valid = (
-        cells[keep], cols[keep], rows[keep], flat[keep], measured[keep], valid[keep])
-    if len(cells) == 0:
-        return CellTexture(colours, textured)
-    # Where each sample's measured point lies, relative to the cell, in the map frame:
-    # d * (B @ [col, row, 1]) - (centre + e) with B = M^T P[:, :3]^-1 (the pixel's ray in
-    # the map frame per metre of depth), e = M^T (b + P[:, :3]^-1 P[:, 3]).
-    inverse = np.linalg.inv(camera.P[:, :3])
-    ray = (matrix.T @ inverse).astype(np.float32)
-    shift = (points[cells] + matrix.T @ (offset + inverse @ camera.P[:, 3])).astype(np.float32)
-    cols32, rows32 = cols.astype(np.float32), rows.astype(np.float32)
-    # The cell, grown by ``slack`` along the line of sight (depth noise): per map axis,
-    # half a cell plus the slack's share along that axis. A point in the grown part lies in
-    # a neighbouring cell; it is that cell's surface when the neighbour is occupied.
-    sight = points[cells] + matrix.T @ offset                           # camera -> cell
-    sight /= np.linalg.norm(sight, axis=1, keepdims=True)
-    reach = (half + slack * np.abs(sight)).astype(np.float32)            # (K, 3)
-    ijk, occupied = _lattice(points, resolution)
-    step = np.zeros(valid.shape, dtype=np.intp)       # flat offset of the neighbour holding it
-    strides = np.array(occupied.strides, dtype=np.intp) // occupied.itemsize
-    with np.errstate(invalid='ignore'):
-        for axis in range(3):       # |offset| <= reach along each map axis; NaN, inf: False
-            offset_axis = ((rows32 * ray[axis, 1] + ray[axis, 2])[:, :, None]
-                           + (cols32 * ray[axis, 0])[:, None, :]) * measured
-            offset_axis -= shift[:, axis, None, None]
-            valid &= np.abs(offset_axis) <= reach[:, axis, None, None]
-            step += strides[axis] * ((offset_axis > half).view(np.int8)
-                                     - (offset_axis < -half).view(np.int8))
-    home = np.ravel_multi_index(tuple(ijk[cells].T), occupied.shape)
-    valid &= (step == 0) | ~occupied.reshape(-1)[home[:, None, None] + step]
-    inside = valid.reshape(len(cells), -1)
-    flat = flat.reshape(len(cells), -1)
-    hits = np.count_nonzero(inside, axis=1)
-    seen = hits >= need
-    cells, flat, inside, hits = cells[seen], flat[seen], inside[seen], hits[seen]
-    if len(cells) == 0:
-        return CellTexture(colours, textured)
-    colours[cells] = _median_colours(image, flat, inside, hits)
-    textured[cells] = True
-    return CellTexture(colours, textured)
+
+def warm_up() -> None:
+    """Run the compiled loop once on a scratch scene (two cells in front of a 4 x 4
+    camera): numba loads it from its cache (or compiles it) on its first call, which a node
+    pays at start rather than on its first map."""
+    P = np.array([[4.0, 0.0, 2.0, 0.0], [0.0, 4.0, 2.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    camera = CameraModel(4, 4, P[:, :3], np.zeros(5), np.eye(3), P)
+    identity = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+    texture_cells([[0.0, 0.0, 0.5], [0.005, 0.0, 0.5]], 0.005, np.zeros((4, 4, 3), np.uint8),
+                  camera, np.eye(3), identity, identity, np.full((4, 4), 0.5, np.float32))
 
 
 def _check(image: NDArray[np.uint8], depth: NDArray[np.floating], camera: CameraModel) -> None:
@@ -311,57 +308,23 @@ def _check(image: NDArray[np.uint8], depth: NDArray[np.floating], camera: Camera
                          f'{camera.P[2].tolist()}')
 
 
-def _median_colours(image: NDArray[np.uint8], flat: NDArray[np.intp], use: Bools,
-                    count: NDArray[np.intp]) -> Colours:
-    """Per-channel median of the pixels ``flat`` (K, S) where ``use``; ``count`` (K,) >= 1
-    used pixels per row (of an even count, the upper of the two middle values).
-
-    One fixed rank for every row: the unused samples are replaced by as many 0s below and
-    255s above the used ones as put the used median at rank S // 2. That rank is selected
-    by a sorting network applied to all rows at once (numpy's partition works row by row:
-    5 times slower for 25 values)."""
-    rows, size = flat.shape
-    rank = size // 2
-    channels = 1 if image.ndim == 2 else 3
-    pixels = image.reshape(-1, channels)
-    zeros = rank - count // 2                                     # 0 <= zeros <= S - count
-    unused = ~use.T                                               # (S, K): wire, row
-    fill = np.where(np.cumsum(unused, axis=0) <= zeros, np.uint8(0), np.uint8(255))
-    planes = np.empty((size, channels, rows), dtype=np.uint8)
-    for channel in range(channels):
-        planes[:, channel] = np.where(unused, fill, pixels[:, channel][flat.T])
-    wires = planes.reshape(size, -1)                              # one wire per sample
-    low = np.empty_like(wires[0])
-    for a, b in _selection_network(size, rank):
-        np.minimum(wires[a], wires[b], out=low)
-        np.maximum(wires[a], wires[b], out=wires[b])
-        wires[a] = low
-    median: Colours = np.ascontiguousarray(
-        np.broadcast_to(wires[rank].reshape(channels, rows).T, (rows, 3)))
-    return median
-
-
-@functools.lru_cache(maxsize=8)
-def _selection_network(size: int, rank: int) -> tuple[tuple[int, int], ...]:
-    """Compare-exchange pairs (low wire first) that put the value of the given rank on wire
-    ``rank``: Batcher's odd-even merge sort for ``size`` wires (padded to a power of two,
-    the pairs beyond ``size`` dropped: padding would sort last), less the comparators that
-    cannot reach that wire. 113 pairs for 25 values."""
-    padded = 1 << max(0, (size - 1).bit_length())
-    pairs = []
-    p = 1
-    while p < padded:
-        k = p
-        while k >= 1:
-            for j in range(k % p, padded - k, 2 * k):
-                for i in range(min(k, padded - j - k)):
-                    if (i + j) // (2 * p) == (i + j + k) // (2 * p) and i + j + k < size:
-                        pairs.append((i + j, i + j + k))
-            k //= 2
-        p *= 2
-    needed, kept = {rank}, []
-    for a, b in reversed(pairs):
-        if a in needed or b in needed:
-            kept.append((a, b))
-            needed |= {a, b}
-    return tuple(reversed(kept))
+def _median_colours(image: NDArray[np.uint8], pixels: NDArray[np.intp],
+                    owners: NDArray[np.intp]) -> Colours:
+    """Per-channel median of each owner's pixels (of an even count, the upper of the two
+    middle values), the owners in increasing order: one sort per channel, by owner then
+    value, for all cells at once."""
+    channels = image.reshape(-1, 1 if image.ndim == 2 else 3)[pixels]
+    if len(owners) == 0:
+        return np.zeros((0, 3), dtype=np.uint8)
+    order = np.argsort(owners, kind='stable')
+    owners, channels = owners[order], channels[order]
+    first = np.flatnonzero(np.r_[True, owners[1:] != owners[:-1]])
+    counts = np.diff(np.r_[first, len(owners)])
+    middle = first + counts // 2
+    median = np.empty((len(first), channels.shape[1]), dtype=np.uint8)
+    for channel in range(channels.shape[1]):
+        by_value = np.lexsort((channels[:, channel], owners))
+        median[:, channel] = channels[by_value, channel][middle]
+    result: Colours = np.ascontiguousarray(np.broadcast_to(median, (len(first), 3))) \
+        if median.shape[1] == 1 else median
+    return result

@@ -7,6 +7,7 @@ through ``inhand_mapping.bag_mapping``), so a truncated MCAP is read up to the c
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +32,7 @@ class BagPoints:
     finger_names: list
     mode: str
     stats: object = None
+    problem: str | None = None   # a truncated or damaged bag: what was left out (one line)
 
 
 def read_bag_points(bag, mode: str, config: str | None = None) -> BagPoints:
@@ -52,9 +54,12 @@ def read_bag_points(bag, mode: str, config: str | None = None) -> BagPoints:
     raw_points = np.concatenate([r[0] for r in raw]) if raw else np.empty((0, 3))
     raw_fingers = (np.concatenate([r[1] for r in raw]).astype(np.int64) if raw
                    else np.empty(0, np.int64))
+    problem = registration.report['truncated']
+    if problem:     # every tool that reads points from a bag says so, in one line
+        print(f'warning: {bag} is truncated or damaged: {problem}', file=sys.stderr)
     return BagPoints(raw_points, raw_fingers, points, finger_ids.astype(np.int64), times,
                      list(registration_config.finger_names), mode,
-                     registration.registrar.stats)
+                     registration.registrar.stats, problem)
 
 
 def bag_topics(bag) -> dict[str, str]:

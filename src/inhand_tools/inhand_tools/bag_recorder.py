@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from inhand_common.mcap_integrity import stamp_bag_crcs
 from inhand_tools.message_types import UnknownMessageType, message_class
 
 __all__ = ['RecordRequest', 'Recorder', 'prepare_output', 'record_topics', 'recording_summary']
@@ -204,6 +205,8 @@ def record_topics(ros_args: list[str], request: RecordRequest) -> Recorder | Non
                 node.destroy_node()
             if writer is not None and writer.storage is not None:
                 writer.close()
+                # rosbags writes no CRCs; with them a damaged message is found on reading
+                stamp_bag_crcs(request.output)
     return recorder
 
 

@@ -260,7 +260,9 @@ class TopicWatch:
 
         self._context = rclpy.Context()
         rclpy.init(context=self._context)
-        self._node = Node('launch_topic_watch', context=self._context)
+        # one node per watched topic: two of one name share their rosout logger and warn
+        name = 'launch_watch_' + ''.join(c if c.isalnum() else '_' for c in self.topic)
+        self._node = Node(name.strip('_'), context=self._context)
         self._node.create_subscription(
             self.msg_type, self.topic, self._arrived,
             QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,

@@ -496,11 +496,22 @@ def draw_texture_registration(scene: MapScene, stereo: StereoCloud) -> list:
     return []
 
 
+def explored_above(cells: MapCells, threshold: float) -> np.ndarray:
+    """The cells a picture at ``threshold`` shows: probability above it and, below 1/2,
+    only the touched cells and those observed occupied (the paper's fig. 5 shows what was
+    explored). A fused map gives every cell the camera saw free a probability above 0;
+    those would bury the object in a block of free space. Maps without hit counts: all."""
+    keep: np.ndarray = cells.probabilities > threshold
+    if threshold < 0.5 and np.any(cells.hits):
+        keep &= (cells.hits > 0) | (cells.probabilities > 0.5)
+    return keep
+
+
 def draw_map_above(scene: MapScene, threshold: float) -> list:
     """map_above_<threshold>.png: the cells with probability > ``threshold``, shaded by
     probability; returns its panel of map_thresholds.png."""
     cells = scene.cells
-    keep = cells.probabilities > threshold
+    keep = explored_above(cells, threshold)
     draw = scene.cell_drawer(cells.centres[keep],
                              drawing.probability_colours(cells.probabilities[keep]))
     note = f'{np.count_nonzero(keep)} cells'

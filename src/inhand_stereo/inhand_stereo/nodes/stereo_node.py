@@ -32,12 +32,13 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from inhand_common.health import IntervalCounts, Problems
+from inhand_common.health import WARN, IntervalCounts, Problems
 from inhand_common.node_runner import run_node
 from inhand_common.packed_rgb import rgb_of_colours
 from inhand_common.point_cloud import from_point_cloud2, serialize_point_cloud2
@@ -52,10 +53,11 @@ from inhand_mapping.qos import LATCHED_QOS
 from inhand_mapping.registration import Registrar
 from inhand_stereo.pair_flow import NewestPair, flow_report
 from inhand_stereo.scene_segmentation import warm_up as warm_up_segmentation
-from inhand_stereo.shot_placement import PlacedShot, ShotPlacer, UnplacedShot
-from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
+from inhand_stereo.shot_placement import PlacedShot, ShotPlacer, UnplacedShot, waiting_advice
+from inhand_stereo.stereo_config import FOLLOW_REGISTRATION, STEREO_PARAMETERS, StereoConfig
 from inhand_stereo.stereo_inputs import StereoInputs, StereoPair, shot_from_messages
 from inhand_stereo.stereo_pipeline import StereoPipeline, StereoShot
+from inhand_stereo.texture import warm_up as warm_up_texture
 from inhand_stereo.vision_model import VisionMap, warm_up
 
 IMAGE_QOS = qos_profile_sensor_data          # best-effort, depth 5
@@ -78,12 +80,13 @@ class StereoNode(Node):
         config = self.config
         self.pipeline = StereoPipeline(config.disparity, point_step=config.point_step)
         self.inputs: StereoInputs[Image, CameraInfo] = StereoInputs()
-        self.placer = ShotPlacer(Registrar(config.mode, config.max_gap))
+        self.placer = ShotPlacer(None)        # until the graph's mode is known
         self.placed: PlacedShot | None = None
         self.vision = VisionMap(config.grid, config.vision, config.clamp)
         started = time.monotonic()
         warm_up(config.vision, config.grid.resolution)   # not on the first pair
         warm_up_segmentation(config.grid, config.segmentation)
+        warm_up_texture()
         self.get_logger().info(f'kernels ready in {time.monotonic() - started:.2f} s')
         self.cells: np.ndarray | None = None         # the latest occupied cloud's points
         self.counts = {'processed': 0, 'refused': 0, 'no_object_pose': 0}
@@ -100,9 +103,22 @@ class StereoNode(Node):
                 # camera_info too: a best-effort reader loses it in a fast replay's burst
                 self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
                                          lambda msg, side=side: self._on_info(side, msg), qos)
-        if config.mode == 'tracked':
-            self.create_subscription(PoseStamped, station_pose_topic(config.object_name),
-                                     self._on_object_pose, POSE_QOS, raw=True)
+        # The graph's mode is the registration node's (mode 'follow', the default): asked
+        # from whichever node publishes registration/object_frame. Until it is known the
+        # pairs wait, and after WAIT_WARNING s the node says why and what to do.
+        self.object_topic = station_pose_topic(config.object_name)
+        self.mode_source = 'no node publishes registration/object_frame yet'
+        self._mode_query: Any = None
+        self._registration_mode: str | None = None
+        self._held_since: float | None = None    # monotonic: since when a pair waits
+        if config.mode != FOLLOW_REGISTRATION:
+            self._use_mode(config.mode, 'its mode parameter')
+        self._mode_timer = self.create_timer(MODE_QUERY_PERIOD, self._ask_registration_mode)
+        if config.mode != 'static':
+            # from the start: a fast replay sends every pose before the mode is known (the
+            # placer keeps them until it is; in static mode it ignores them)
+            self.create_subscription(PoseStamped, self.object_topic, self._on_object_pose,
+                                     POSE_QOS, raw=True)
         self.create_subscription(PointCloud2, 'occupancy/occupied', self._on_map, LATCHED_QOS)
         self._disparity = self.create_publisher(DisparityImage, 'stereo/disparity', LATCHED_QOS)
         self._points = self.create_publisher(PointCloud2, 'stereo/points', LATCHED_QOS)
@@ -121,8 +137,63 @@ class StereoNode(Node):
         matcher = self.pipeline.matcher.config
         self.get_logger().info(
             f"stereo: {'semi-global' if matcher.stereo_algorithm else 'block'} matching, "
-            f'disparities {matcher.min_disparity}..{matcher.max_search} px; {config.mode} '
-            f'mode; camera_pose {np.round(config.camera_pose, 4).tolist()}')
+            f'disparities {matcher.min_disparity}..{matcher.max_search} px; mode '
+            f'{config.mode}; camera_pose {np.round(config.camera_pose, 4).tolist()}')
+
+    # ------------------------------------------------------------------ the graph's mode
+    def _ask_registration_mode(self) -> None:
+        """Ask the node that publishes registration/object_frame for its mode, until one
+        answers."""
+        if self._mode_query is not None:
+            return
+        topic = self.resolve_topic_name('registration/object_frame')
+        publishers = self.get_publishers_info_by_topic(topic)
+        if not publishers:
+            return
+        info = publishers[0]
+        node = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+        client = self.create_client(GetParameters, f'{node}/get_parameters')
+        if not client.service_is_ready():
+            self.mode_source = f'{node} (publishes {topic}) does not answer yet'
+            self.destroy_client(client)
+            return
+        self._mode_query = client.call_async(GetParameters.Request(names=['mode']))
+        self._mode_query.add_done_callback(
+            lambda future: self._on_registration_mode(node, client, future))
+
+    def _on_registration_mode(self, node: str, client: Any, future: Any) -> None:
+        values = getattr(future.result(), 'values', None)
+        mode = values[0].string_value if values else ''
+        self.destroy_client(client)
+        if mode not in ('static', 'tracked'):
+            self.mode_source = f'{node} has no mode parameter'
+            self._mode_query = None          # ask again (another node may take the topic)
+            return
+        self._mode_timer.cancel()
+        self._registration_mode = mode
+        if self.placer.mode is None:
+            self._use_mode(mode, f'from {node}')
+        elif self.placer.mode != mode:
+            self.get_logger().warning(
+                f'this node places the pairs in {self.placer.mode} mode (its mode parameter) '
+                f'but {node} registers in {mode} mode: the images and the touch map will not '
+                f"line up; leave this node's mode unset (follow) so the graph has one mode")
+
+    def _use_mode(self, mode: str, source: str) -> None:
+        self.mode_source = source
+        with self._state:
+            self._decided(self.placer.use(Registrar(mode, self.config.max_gap)))
+        self.get_logger().info(f'placing the stereo pairs in {mode} mode ({source})')
+
+    def _waiting(self) -> tuple[str, str] | None:
+        """Why pairs wait to be placed, once one has waited WAIT_WARNING s (diagnostics
+        warn, and log it when it starts, when its cause changes and every 10 s)."""
+        with self._state:
+            since, mode, poses = self._held_since, self.placer.mode, self.placer.object_poses
+        if since is None or time.monotonic() - since < WAIT_WARNING:
+            return None
+        return waiting_advice(mode, time.monotonic() - since, poses, self.object_topic,
+                              self.mode_source)
 
     # ------------------------------------------------------------------ inputs
     def _on_image(self, side: str, msg: Image) -> None:
@@ -179,7 +250,12 @@ class StereoNode(Node):
         self._decided(self.placer.add_shot(shot))
 
     def _decided(self, outcomes: list[PlacedShot | UnplacedShot]) -> None:
-        """Publish the shots placed on the object; say why the others cannot be."""
+        """Publish the shots placed on the object; say why the others cannot be. (Called
+        after every change of the placer: notes since when a pair waits.)"""
+        if not self.placer.held:
+            self._held_since = None
+        elif self._held_since is None:
+            self._held_since = time.monotonic()
         for outcome in outcomes:
             if isinstance(outcome, UnplacedShot):
                 self.counts['no_object_pose'] += 1
@@ -260,6 +336,9 @@ class StereoNode(Node):
     def _report(self, now: float, problems: Problems) -> tuple[str, dict[str, object]]:
         counts = self._flow()
         elapsed, increases = self._interval.step(time.monotonic(), counts)
+        waiting = self._waiting()
+        if waiting is not None:
+            problems.add(WARN, *waiting)
         return flow_report(counts, increases, elapsed, problems)
 
     def close(self) -> None:
@@ -271,6 +350,10 @@ class StereoNode(Node):
             f"processed, {flow['pairs skipped']} skipped while busy, {flow['pairs refused']} "
             f"refused, {flow['pairs without an object pose']} without an object pose, "
             f"{flow['images unpaired']} images never paired")
+
+
+MODE_QUERY_PERIOD = 0.5    # s between looks for the registration node
+WAIT_WARNING = 3.0         # s a pair may wait to be placed before the node says why
 
 
 def main(args: list[str] | None = None) -> int:

@@ -14,6 +14,14 @@ usable pair as the stereo node colours them (``occupancy/textured``) and the fil
 colours. No DDS involved. A truncated bag is reported with what could be read, and the map
 of that part is still written (exit code 1); a bag without the topics is refused (exit
 code 2).
+
+A damaged bag (an MCAP chunk or data section that fails its CRC, a sqlite3 database that
+fails its quick_check, a record that does not parse, a file cut short) is read without the
+damaged messages, and one line names what was left out. Its map is written when the output
+files do not exist yet (exit code 1, as for a truncated bag); over an existing map only
+with ``--force``: without it the existing files are left as they were (exit code 2). The
+summary's ``bag check`` line says what could be checked: an MCAP file without CRCs
+(rosbags, and so ``bag_record``, writes none) cannot show damage inside a message.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ from inhand_mapping.bag_mapping import build_map_from_bag
 from inhand_mapping.global_map import GlobalMap
 from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import OccupancyConfig, load_parameters, parse_overrides
+from inhand_mapping.node_health import outside_note
 from inhand_mapping.occupancy import OccupancyGrid
 from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
 from inhand_stereo.texture import CellTexture
@@ -79,8 +88,9 @@ def main(argv=None) -> int:
                         help='override a parameter (repeatable)')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
     parser.add_argument('--force', action='store_true',
-                        help='write an empty map over an existing one (a bag from which '
-                        'nothing could be mapped otherwise leaves the existing map alone)')
+                        help='write over an existing map a map from a damaged or truncated '
+                        'bag, or an empty map (either otherwise leaves the existing map '
+                        'alone)')
     args = parser.parse_args(argv)
     single_threaded_blas()     # as the nodes it stands for
     try:
@@ -103,6 +113,14 @@ def main(argv=None) -> int:
     grid = global_map.grid()
     name = args.name or args.bag.name.rsplit('.', 1)[0] or 'map'
     existing = args.output_dir / f'{name}.npz'
+    outputs = [path for path in (existing, args.output_dir / f'{name}.ply',
+                                 args.output_dir / f'{name}_object_centric.ply') if path.exists()]
+    if report['truncated'] and outputs and not args.force:
+        # A damaged bag must not silently cost a good map either.
+        print(f'build_map: {args.bag} is damaged: {report["truncated"]}. Refusing to write its '
+              f'map over the existing {", ".join(str(p) for p in outputs)}, left as they '
+              'were (--force writes it anyway)', file=sys.stderr)
+        return EXIT_BAD_INPUT
     if not grid.touched_mask().any() and existing.exists() and not args.force:
         # An unreadable bag must not cost a good map.
         print(f'build_map: nothing could be mapped from {args.bag} ({report["messages"]} '
@@ -132,11 +150,19 @@ def main(argv=None) -> int:
     print(f'  map: {grid.counts.integrated} points integrated, {grid.counts.outside} outside '
           f'the workspace, {grid.counts.invalid} invalid; {len(touched)} cells touched, '
           f'{len(occupied)} above {threshold:g}')
+    if grid.counts.outside:
+        on_faces = int(np.count_nonzero(grid.spec.on_faces(
+            np.stack([occupied['x'], occupied['y'], occupied['z']], axis=1))))
+        print(f"  {'warning: ' if on_faces else ''}"
+              f"{outside_note(grid.counts.outside, stats.registered, on_faces, '')}",
+              file=sys.stderr if on_faces else sys.stdout)
     for note in stereo_notes:
         print(note)
     if frame is not None:
         print('  centre of mass (object frame): '
               + ', '.join(f'{v:+.4f}' for v in frame.centre_of_mass) + ' m')
+    if report.get('checked'):
+        print('  bag check: ' + '; '.join(report['checked']))
     print('  wrote ' + ', '.join(str(p) for p in paths))
     if report['truncated']:
         print(f'build_map: the bag is truncated or damaged: {report["truncated"]}. The map '

@@ -5,7 +5,7 @@
                          [--min-rotation-deg 15] [--max-residual-mm 3]
                          [--max-uncertainty-mm 1] [--figure PNG]
 
-On the bench (README, "Real fingers"): rest each finger's pad in a small dimple (or on one
+On the bench (docs/mapping.md, "Real fingers"): rest each finger's pad in a small dimple (or on one
 fixed point of the table) and tilt the finger 30-60 degrees about it in several directions
 for about ten seconds, one finger after the other, while the driver runs (recorded with
 ``bag_record``, or read live with ``--live``). For each finger in ``finger_names`` (from the

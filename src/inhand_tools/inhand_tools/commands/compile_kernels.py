@@ -13,7 +13,7 @@ not depend on the sizes): the occupancy update of both touch models with its sur
 layer (``occupancy.warm_up``) and the gathering of the map's cells, the fusion of a touch
 and a vision map by every fusion and pooling (``fusion.fuse``), and one exposure of the
 vision map with the scene segmentation that precedes it (``vision_model.warm_up``,
-``scene_segmentation.warm_up``).
+``scene_segmentation.warm_up``), and the texture of a map (``texture.warm_up``).
 ``benchmark.sh startup`` checks that a build_map and both nodes then compile nothing.
 Exit status 0, or 1 when a kernel fails to compile (the message says which).
 """
@@ -33,6 +33,7 @@ from inhand_mapping.occupancy import TOUCH_MODELS, GridSpec, OccupancyGrid
 from inhand_mapping.occupancy import warm_up as warm_up_occupancy
 from inhand_stereo.scene_segmentation import warm_up as warm_up_segmentation
 from inhand_stereo.stereo_config import load_stereo_config
+from inhand_stereo.texture import warm_up as warm_up_texture
 from inhand_stereo.vision_model import warm_up as warm_up_vision
 
 PROG = 'compile_kernels'
@@ -66,10 +67,11 @@ def _vision() -> None:
     config = load_stereo_config((), {})
     warm_up_vision(config.vision, config.grid.resolution)
     warm_up_segmentation(config.grid, config.segmentation)
+    warm_up_texture()
 
 
 STEPS = (('occupancy update and surface layer', _occupancy), ('fusion', _fusion),
-         ('vision map and scene segmentation', _vision))
+         ('vision map, scene segmentation and texture', _vision))
 
 
 def main(argv: list[str] | None = None) -> int:

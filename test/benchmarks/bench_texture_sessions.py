@@ -1,0 +1,174 @@
+#!/usr/bin/env python3
+"""Texture of the occupied cells on touch sessions of other hands and objects.
+
+Run from the workspace root with the workspace's environment::
+
+    .venv/bin/python test/benchmarks/bench_texture_sessions.py [--keep DIR] [--set tune|report|bundled|all]
+
+The map's texture (``inhand_stereo/texture.py``) is judged on what a user meets: a touch map
+of a hand that hovers, trembles and lifts at an angle (``simulate_session --hand ...``),
+not the simulator's default hand, on objects the texture rule was not written on, with the
+camera in another place each time, and the bundled bags. Each session: ``simulate_session``
+(with one stereo pair), ``build_map`` with the shipped files and the rig's own camera_pose,
+then the map's cells against the truth, as ``map_metrics`` scores them:
+
+* *seen cells*: occupied cells (p > 0.8) holding a surface sample the camera saw (or whose
+  nearest sample it saw), by the truth's depth (``map_quality.seen_cells``);
+* *textured*: the share of the seen cells that carry a colour (target >= 0.85);
+* *back faces*: textured cells more than one cell from any surface the camera saw, as a
+  share of the occupied cells it did not see (target <= 1 %); *unseen textured*: all
+  textured cells the truth does not count as seen (most lie next to the seen surface);
+* *colour error*: the median distance (0-255 RGB) between a textured cell's colour and
+  the truth's colour there.
+
+Two sets of sessions: ``tune`` (the sessions the texture rule's defaults were chosen on)
+and ``report`` (others, never used to choose); ``bundled``: the three bundled bags.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+WORKSPACE = Path(__file__).resolve().parents[2]
+CONFIG = WORKSPACE / 'config'
+
+HOVERING = ['--hand', 'hover_probability=0.2']
+SETS = {
+    'tune': {
+        'duck': ['--object', 'duck', '--static', '--rate', '30', '--speed', '10', *HOVERING,
+                 '--hand', 'speed_profile=bell', '--hand', 'tremor_amplitude=0.0005',
+                 '--hand', 'liftoff_angle_range=0,45', '--seed', '301', '--camera-azimuth',
+                 '40'],
+        'animal': ['--object', 'animal', '--static', '--rate', '30', '--speed', '5', *HOVERING,
+                   '--hand', 'speed_profile=bell', '--seed', '302', '--camera-elevation', '35'],
+        'cup': ['--object', 'cup', '--moving', '--rate', '30', '--speed', '10', '--hand',
+                'hover_probability=0.3', '--hand', 'tremor_amplitude=0.0005', '--seed', '303'],
+        'mug': ['--object', 'mug', '--static', '--rate', '15', '--speed', '15', '--seed', '304',
+                '--camera-azimuth', '120'],
+    },
+    'report': {
+        'box': ['--object', 'box', '--static', '--rate', '30', '--speed', '8', '--hand',
+                'hover_probability=0.25', '--hand', 'speed_profile=bell', '--hand',
+                'tremor_amplitude=0.0005', '--seed', '401', '--camera-azimuth', '-30',
+                '--camera-elevation', '30'],
+        'large': ['--object', 'large', '--moving', '--rate', '30', '--speed', '12', *HOVERING,
+                  '--hand', 'liftoff_angle_range=0,45', '--seed', '402'],
+        'plate': ['--object', 'plate', '--static', '--rate', '15', '--speed', '5', *HOVERING,
+                  '--seed', '403', '--camera-elevation', '50'],
+        'bottle': ['--object', 'bottle', '--static', '--rate', '30', '--speed', '10', *HOVERING,
+                   '--hand', 'tremor_amplitude=0.0005', '--seed', '404', '--camera-azimuth',
+                   '70'],
+        'cat': ['--object', 'cat', '--moving', '--rate', '30', '--speed', '15', '--hand',
+                'hover_probability=0.3', '--hand', 'speed_profile=bell', '--seed', '405',
+                '--camera-azimuth', '-60'],
+    },
+    'bundled': {'cat_static': None, 'cat_moving': None, 'bottle_static': None},
+}
+
+
+def session(name: str, options: list[str] | None, folder: Path) -> Path:
+    """The session's bag (simulated into ``folder`` unless there, or bundled)."""
+    if options is None:
+        return WORKSPACE / 'bags' / name
+    bag = folder / name
+    if not bag.exists():
+        from inhand_sim.commands.simulate_session import main as simulate
+        simulate([*options, '--duration', '90', '--stereo', '--output', str(bag), '--quiet'])
+    return bag
+
+
+def camera_file(bag: Path, truth, folder: Path) -> Path:
+    """The rig's camera_pose as its calibration would give it (the truth's)."""
+    path = folder / f'{bag.name}_camera.yaml'
+    path.write_text('/**/stereo_node:\n  ros__parameters:\n    camera_pose: ['
+                    + ', '.join(f'{float(v):.9f}' for v in truth.stereo.camera_pose) + ']\n')
+    return path
+
+
+def scores(bag: Path, folder: Path) -> dict:
+    from scipy.spatial import cKDTree
+
+    from inhand_common.ground_truth import in_frame, load_truth
+    from inhand_mapping.mapping_config import load_parameters
+    from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+    from inhand_tools.commands.build_map import main as build_map
+    from inhand_tools.map_cells import load_map
+    from inhand_tools.map_quality import colour_metrics, seen_cells, surface_truth
+    from inhand_tools.stereo_quality import principal_point, visible_samples
+    truth = load_truth(f'{bag}.truth.npz')
+    configs = [str(CONFIG / ('mapping_static.yaml' if truth.static else 'mapping.yaml')),
+               str(CONFIG / 'stereo.yaml'), str(camera_file(bag, truth, folder))]
+    out = folder / 'maps'
+    with contextlib.redirect_stdout(io.StringIO()):
+        build_map([str(bag), *[a for c in configs for a in ('--config', c)], '--output-dir',
+                   str(out), '--quiet', '--force'])
+    cells = load_map(out / f'{bag.name}.npz', None)
+    registration, occupancy = load_parameters(configs, {})
+    shot, why = read_bag_shot(bag, stereo_config_for_map(configs, registration, occupancy))
+    if shot is None:
+        raise SystemExit(f'{bag}: {why}')
+    truth = in_frame(truth, 'tracker' if truth.static else 'object')
+    surface = surface_truth(truth, 0.005)
+    resolution = cells.lattice.resolution
+    visible = visible_samples(truth, principal_point(shot), resolution)
+    occupied = cells.probabilities > 0.8
+    seen = seen_cells(cells.centres[occupied], cells.lattice, surface, visible)
+    textured = cells.textured[occupied]
+    far, _ = cKDTree(truth.surface_points[visible]).query(cells.centres[occupied])
+    colour = colour_metrics(cells.centres, cells.probabilities, cells.lattice, cells.colours,
+                            cells.textured, surface, truth.surface_colours, visible)
+    unseen = int(np.count_nonzero(~seen))
+    return {'seen': int(seen.sum()), 'textured': int(np.count_nonzero(seen & textured)),
+            'unseen': unseen, 'unseen_textured': int(np.count_nonzero(textured & ~seen)),
+            'back': int(np.count_nonzero(textured & ~seen & (far > resolution))),
+            'colour': colour['colour_error_median']}
+
+
+KEYS = ('seen', 'textured', 'unseen', 'back', 'unseen_textured')
+
+
+def _row(result: dict) -> str:
+    unseen = max(int(result['unseen']), 1)
+    colour = f" {result['colour']:12.1f}" if 'colour' in result else ''
+    return (f"{result['seen']:5d} {result['textured'] / result['seen']:9.3f} "
+            f"{result['back']:5d} ({result['back'] / unseen:6.2%}) "
+            f"{result['unseen_textured']:5d} ({result['unseen_textured'] / unseen:6.2%})"
+            f'{colour}')
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--keep', type=Path, help='keep (and reuse) the sessions here')
+    parser.add_argument('--set', choices=[*SETS, 'all'], default='all')
+    args = parser.parse_args()
+    names = list(SETS) if args.set == 'all' else [args.set]
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = args.keep or Path(scratch)
+        folder.mkdir(parents=True, exist_ok=True)
+        print(f'{"session":14s} {"seen":>5s} {"textured":>9s} {"back faces":>16s} '
+              f'{"unseen textured":>17s} {"colour error":>12s}', flush=True)
+        for set_name in names:
+            total = np.zeros(5, dtype=np.int64)
+            for name, options in SETS[set_name].items():
+                started = time.monotonic()
+                result = scores(session(name, options, folder), folder)
+                total += [result[key] for key in KEYS]
+                print(f'{name:14s} {_row(result)}   ({time.monotonic() - started:.0f} s)',
+                      flush=True)
+            seen, textured, unseen, back, _ = total
+            verdict = 'PASS' if textured / seen >= 0.85 and back / unseen <= 0.01 else 'FAIL'
+            print(f'{set_name + " (all)":14s} {_row(dict(zip(KEYS, total)))}   targets >= '
+                  f'0.85 textured, <= 1 % back faces: {verdict}\n', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
