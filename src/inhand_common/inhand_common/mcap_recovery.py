@@ -295,7 +295,6 @@ class _Walker:
             raise ValueError(f'chunk does not decompress: {error}') from None
         yield from self.records(records, 0, len(records), top_level=False)
 
-
     @staticmethod
     def _crc_matches(records: bytes, compression: str, crc: int) -> bool:
         try:

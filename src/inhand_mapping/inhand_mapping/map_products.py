@@ -32,6 +32,12 @@ class MapProducts:
             self._clouds = MapClouds(self.grid)
         return self._clouds(self.threshold)
 
+    def occupied_on_faces(self, occupied: np.ndarray) -> int:
+        """How many of ``occupied`` (the second of :meth:`cells`) lie in the grid's
+        outermost layer: a map that reaches it may be cut off by a workspace too small."""
+        centres = np.stack([occupied['x'], occupied['y'], occupied['z']], axis=1)
+        return int(np.count_nonzero(self.grid.spec.on_faces(centres)))
+
     def object_frame(self) -> ObjectFrame | None:
         centres, probabilities, _, _ = self.grid.cells(threshold=self.threshold)
         return object_frame(centres, probabilities, self.threshold)

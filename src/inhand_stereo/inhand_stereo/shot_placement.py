@@ -13,6 +13,7 @@ share it.
 
 from __future__ import annotations
 
+from collections import deque
 from typing import NamedTuple
 
 import numpy as np
@@ -103,7 +104,8 @@ class ShotPlacer:
         self.registrar = registrar
         self.held: list[StereoShot] = []
         self.object_poses = 0
-        self._early_poses: list[tuple[float, ArrayLike, ArrayLike]] = []
+        self._early_poses: deque[tuple[float, ArrayLike, ArrayLike]] = deque(
+            maxlen=MAX_EARLY_POSES)
 
     @property
     def mode(self) -> str | None:
@@ -115,7 +117,7 @@ class ShotPlacer:
         self.registrar = registrar
         for t, position, quaternion in self._early_poses:
             registrar.add_object_pose(t, position, quaternion)
-        self._early_poses = []
+        self._early_poses.clear()
         return self._decide()
 
     def add_object_pose(self, t: float, position: ArrayLike, quaternion: ArrayLike
@@ -124,7 +126,6 @@ class ShotPlacer:
         self.object_poses += 1
         if self.registrar is None:
             self._early_poses.append((t, position, quaternion))
-            del self._early_poses[:-MAX_EARLY_POSES]
             return []
         self.registrar.add_object_pose(t, position, quaternion)
         return self._decide()

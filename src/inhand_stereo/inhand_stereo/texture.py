@@ -120,7 +120,11 @@ def project_cells(centres: ArrayLike, camera: CameraModel, R_left: ArrayLike,
 
 
 def _project(points: Points, P: Floats, matrix: Matrix3, offset: Vector3) -> Projection:
-    rectified = points @ matrix.T + offset
+    return _project_rectified(points @ matrix.T + offset, P)
+
+
+def _project_rectified(rectified: Points, P: Floats) -> Projection:
+    """Pixel coordinates and depths of points already in the rectified camera frame."""
     w = rectified @ P[2, :3] + P[2, 3]
     z = rectified[:, 2]
     safe = np.where((z > MIN_DEPTH) & (w > 0.0), w, np.inf)
@@ -238,8 +242,8 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     colours = np.zeros((len(points), 3), dtype=np.uint8)
     textured = np.zeros(len(points), dtype=bool)
     matrix, offset = map_to_rectified(camera_pose, object_pose, R_left)
-    cells, u, v, z = _candidates(points, resolution, camera.P, matrix, offset, depth.shape,
-                                 orientation, orientation_radius)
+    cells, u, v, z, in_camera = _candidates(points, resolution, camera.P, matrix, offset,
+                                            depth.shape, orientation, orientation_radius)
     if len(cells) == 0:
         return CellTexture(colours, textured)
     ijk, occupied = _lattice(points, resolution, pad=3)   # the kernel looks 3 cells around
@@ -249,7 +253,7 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     half = resolution / 2.0
     pixels = np.empty((len(cells), samples * samples), dtype=np.int64)
     counts = window_pixels(
-        u, v, z, np.ascontiguousarray(points[cells] @ matrix.T + offset),
+        u, v, z, in_camera,
         np.ravel_multi_index(tuple(ijk[cells].T), occupied.shape).astype(np.int64),
         occupied.reshape(-1), strides, np.ascontiguousarray(matrix, dtype=np.float64),
         np.ascontiguousarray(depth, dtype=np.float32), P, inverse,
@@ -266,10 +270,13 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
 
 def _candidates(points: Points, resolution: float, P: Floats, matrix: Matrix3,
                 offset: Vector3, shape: tuple[int, ...], orientation: Orientation,
-                orientation_radius: int) -> tuple[NDArray[np.intp], Floats, Floats, Floats]:
+                orientation_radius: int
+                ) -> tuple[NDArray[np.intp], Floats, Floats, Floats, Points]:
     """The cells in front of the camera whose centre's pixel is in the image (and that face
-    it, by ``orientation``): their indices and their projections (u, v, z)."""
-    u, v, z = _project(points, P, matrix, offset)
+    it, by ``orientation``): their indices, their projections (u, v, z) and their centres
+    in the rectified camera frame."""
+    rectified = points @ matrix.T + offset
+    u, v, z = _project_rectified(rectified, P)
     height, width = shape
     column, row = np.floor(u + 0.5), np.floor(v + 0.5)
     candidate = (z > MIN_DEPTH) & (column >= 0) & (column < width) & (row >= 0) & (row < height)
@@ -278,7 +285,7 @@ def _candidates(points: Points, resolution: float, P: Floats, matrix: Matrix3,
         candidate &= facing_camera(points, resolution, camera_in_map, orientation,
                                    orientation_radius)
     cells = np.flatnonzero(candidate)
-    return cells, u[cells], v[cells], z[cells]
+    return cells, u[cells], v[cells], z[cells], np.ascontiguousarray(rectified[cells])
 
 
 def warm_up() -> None:
@@ -316,10 +323,9 @@ def _median_colours(image: NDArray[np.uint8], pixels: NDArray[np.intp],
     channels = image.reshape(-1, 1 if image.ndim == 2 else 3)[pixels]
     if len(owners) == 0:
         return np.zeros((0, 3), dtype=np.uint8)
-    order = np.argsort(owners, kind='stable')
-    owners, channels = owners[order], channels[order]
-    first = np.flatnonzero(np.r_[True, owners[1:] != owners[:-1]])
-    counts = np.diff(np.r_[first, len(owners)])
+    ordered = np.sort(owners)
+    first = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]])
+    counts = np.diff(np.r_[first, len(ordered)])
     middle = first + counts // 2
     median = np.empty((len(first), channels.shape[1]), dtype=np.uint8)
     for channel in range(channels.shape[1]):

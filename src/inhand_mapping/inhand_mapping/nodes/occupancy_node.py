@@ -224,8 +224,7 @@ class OccupancyNode(Node):
                                                       stamp.nanosec))
         self.activity.publications += 1
         self.activity.touched_cells, self.activity.occupied_cells = len(touched), len(occupied)
-        self.activity.occupied_on_faces = int(np.count_nonzero(grid.spec.on_faces(
-            np.stack([occupied['x'], occupied['y'], occupied['z']], axis=1))))
+        self.activity.occupied_on_faces = products.occupied_on_faces(occupied)
         frame = products.object_frame()
         if frame is not None:
             msg = PointStamped()

@@ -2,8 +2,10 @@
 
 Subscribes (best-effort, so camera drivers and reliable bag replays both match)
 ``stereo/left/image_raw``, ``stereo/right/image_raw`` (sensor_msgs/Image: mono8, rgb8, bgr8)
-and ``stereo/left/camera_info``, ``stereo/right/camera_info``; in tracked mode the object
-sensor's ``polhemus/<object_name>/pose`` (reliable); and the latched ``occupancy/occupied``.
+and ``stereo/left/camera_info``, ``stereo/right/camera_info``; unless in static mode, the
+object sensor's ``polhemus/<object_name>/pose`` (reliable); and the latched
+``occupancy/occupied``. The mode is the registration node's (asked over its
+``get_parameters``), unless the ``mode`` parameter fixes one.
 Left and right images pair by exact stamp, with the newest camera_info of each side.
 
 Publishes, reliable and transient-local (a late subscriber gets the latest):
@@ -109,7 +111,6 @@ class StereoNode(Node):
         self.object_topic = station_pose_topic(config.object_name)
         self.mode_source = 'no node publishes registration/object_frame yet'
         self._mode_query: Any = None
-        self._registration_mode: str | None = None
         self._held_since: float | None = None    # monotonic: since when a pair waits
         if config.mode != FOLLOW_REGISTRATION:
             self._use_mode(config.mode, 'its mode parameter')
@@ -170,7 +171,6 @@ class StereoNode(Node):
             self._mode_query = None          # ask again (another node may take the topic)
             return
         self._mode_timer.cancel()
-        self._registration_mode = mode
         if self.placer.mode is None:
             self._use_mode(mode, f'from {node}')
         elif self.placer.mode != mode:
@@ -190,10 +190,10 @@ class StereoNode(Node):
         warn, and log it when it starts, when its cause changes and every 10 s)."""
         with self._state:
             since, mode, poses = self._held_since, self.placer.mode, self.placer.object_poses
-        if since is None or time.monotonic() - since < WAIT_WARNING:
+        waited = 0.0 if since is None else time.monotonic() - since
+        if waited < WAIT_WARNING:
             return None
-        return waiting_advice(mode, time.monotonic() - since, poses, self.object_topic,
-                              self.mode_source)
+        return waiting_advice(mode, waited, poses, self.object_topic, self.mode_source)
 
     # ------------------------------------------------------------------ inputs
     def _on_image(self, side: str, msg: Image) -> None:

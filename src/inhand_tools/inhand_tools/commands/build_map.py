@@ -151,8 +151,7 @@ def main(argv=None) -> int:
           f'the workspace, {grid.counts.invalid} invalid; {len(touched)} cells touched, '
           f'{len(occupied)} above {threshold:g}')
     if grid.counts.outside:
-        on_faces = int(np.count_nonzero(grid.spec.on_faces(
-            np.stack([occupied['x'], occupied['y'], occupied['z']], axis=1))))
+        on_faces = products.occupied_on_faces(occupied)
         print(f"  {'warning: ' if on_faces else ''}"
               f"{outside_note(grid.counts.outside, stats.registered, on_faces, '')}",
               file=sys.stderr if on_faces else sys.stdout)
