@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|texture-sessions|quality|validation|fingers|startup|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|texture-sessions|quality|validation|fingers|shape|startup|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -46,6 +46,11 @@
 #                      with sensors on the nail (point fingertips / raw / offset only /
 #                      calibrated, a wrong offset) and the finger rolling 0-30 degrees
 #                      (test/benchmarks/bench_fingers.py: --quick, --keep DIR)
+#   shape              surface mesh, superquadric parts and graspable part on objects of known
+#                      superquadrics explored by the simulator, static and tracked: parts,
+#                      size/exponent/centre errors, Chamfer against the classic fit and the
+#                      dense-truth fit, times (test/benchmarks/bench_shape.py: --shapes,
+#                      --modes, --keep DIR, --duration S)
 #   startup            first start: build_map, occupancy_node and stereo_node with an empty
 #                      numba cache and after compile_kernels (what bootstrap.sh runs)
 #                      (test/benchmarks/bench_startup.py: --fresh-clone)
@@ -86,8 +91,9 @@ declare -A BENCHMARKS=(
   [latency]=bench_live_latency.py
   [fuzz]=fuzz.py
   [soak]=soak.py
+  [shape]=bench_shape.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture texture-sessions quality validation fingers startup latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture texture-sessions quality validation fingers shape startup latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -7,8 +7,10 @@ stereo pair taken before the exploration; ground truth beside it) through
 registration_node, occupancy_node and stereo_node over real DDS, as fast as the graph
 keeps up (the replay itself is over in well under a second), saves the map (with the
 colours of its occupied cells), renders the pictures with the rig's config/stereo.yaml
-(so the stereo points, the textured map and their registration are among them) and prints
-the metrics. Everything lands in output/demo/; the last line names the textured map's
+(so the stereo points, the textured map and their registration are among them), extracts
+the map's shape (surface mesh, superquadric parts, the graspable part and its grasps:
+cat_moving_shape.png, the paper's Fig. 1) and prints the metrics. Everything lands in
+output/demo/; the last line names the textured map's
 picture. --view also starts live_view (the page at http://127.0.0.1:8080/, Foxglove at
 ws://127.0.0.1:8765) and keeps the graph up after the save until Ctrl-C.
 """
@@ -36,12 +38,16 @@ def main(argv=None) -> int:
         print(f'demo: {BAG} is missing; regenerate the bundled bags with '
               'bash launch_scripts/make_bags.sh', file=sys.stderr)
         return 2
-    for name in STEREO_PICTURES:  # an earlier run's: only this run's are shown
+    for name in (*STEREO_PICTURES, 'cat_moving_shape.png'):  # only this run's are shown
         (OUTPUT / name).unlink(missing_ok=True)
     code = replay(BAG, WORKSPACE / 'config' / 'mapping.yaml', OUTPUT, 'cat_moving',
                   ['--fast'], view_args=args)
     if code != 0:
         return code
+    shape = OUTPUT / 'cat_moving_shape.png'
+    if shape.exists():
+        print(f'[demo] surface mesh, superquadric parts, graspable part and grasps: {shape}',
+              flush=True)
     textured = OUTPUT / 'textured_map.png'
     if textured.exists():
         print(f'[demo] textured map: {textured}', flush=True)

@@ -8,7 +8,8 @@ Starts registration_node and occupancy_node (and stereo_node with config/stereo.
 bag holds a stereo pair: it publishes stereo/points and occupancy/textured), replays BAG
 with bag_replay over real DDS,
 waits for the last registered points to be integrated, calls occupancy/save, stops the
-nodes, then renders the map (render_map) and, when the bag has a ground-truth sidecar
+nodes, then renders the map (render_map), extracts its shape (extract_shape: surface mesh,
+superquadric parts and grasps, NAME_shape.png) and, when the bag has a ground-truth sidecar
 (BAG.truth.npz, written by simulate_session), prints its metrics (map_metrics). The
 config defaults to config/mapping.yaml (tracked object) when the bag has an object sensor
 topic, else config/mapping_static.yaml. Only the graph's inputs are replayed (driver poses,
@@ -99,7 +100,8 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
     with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch, \
             TopicWatch('occupancy/textured', PointCloud2) as textured:
         mapping_graph(group, str(config), str(output), name,
-                      stereo_config=str(stereo) if stereo else None, sim_time=sim_time)
+                      stereo_config=str(stereo) if stereo else None, sim_time=sim_time,
+                      shape=bool(getattr(view_args, 'view', False)))
         view = start_view(group, view_args)
         # The registration node's first points must find the occupancy node (and the
         # view) listening.
@@ -146,6 +148,12 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             if truth.exists():
                 args += ['--truth', str(truth)]
             if group.run('render', args) != 0:
+                return 1
+            # the paper's Fig. 1: surface mesh, superquadric parts, graspable part, grasps
+            # a bag without the object sensor is mapped in the tracker frame, whose z is down
+            up = 'z' if topics is None or OBJECT_POSE_TOPIC in topics else '-z'
+            if group.run('shape', ['extract_shape', str(npz), '--output-dir', str(output), '--quiet',
+                                   f'--up={up}', *configs]) != 0:
                 return 1
         if truth.exists():
             if group.run('metrics', ['map_metrics', str(npz), '--truth', str(truth), '--bag',

@@ -196,7 +196,8 @@ def test_replaying_a_bundled_bag_makes_the_map_pictures_and_metrics(tmp_path):
     assert result.returncode == 0, result.stdout + result.stderr
     assert 'mapping_static.yaml' in result.stdout  # no object sensor in the bag
     for name in ('cat_static.npz', 'cat_static.ply', 'figure.png', 'map_above_0.8.png',
-                 'cat_static.metrics.json'):
+                 'cat_static.metrics.json', 'cat_static_shape.png', 'cat_static_parts.yaml',
+                 'cat_static_surface.stl'):
         assert (tmp_path / name).stat().st_size > 0, name
     metrics = json.loads((tmp_path / 'cat_static.metrics.json').read_text())
     assert metrics['frame'] == 'tracker'  # static session: the map is in the tracker frame

@@ -113,6 +113,20 @@ def test_view_state_map_cells_explored_region_and_colours():
     assert state.snapshot()['map']['colour'] == [-1, 0x102030, -1, -1]
 
 
+def test_view_state_sends_the_shape_with_the_map_when_it_changed():
+    state = ViewState(ViewSettings())
+    version = state.snapshot()['map_version']
+    assert state.snapshot()['shape'] is None
+    triangle = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.01, 0.0]])
+    state.set_shape([('part 0', 'triangles', triangle, (0.96, 0.51, 0.16, 0.85))], 'object')
+    shown = state.snapshot(since=version)
+    assert shown['map_version'] != version
+    assert shown['shape'] == {'frame': 'object', 'items': [
+        {'name': 'part 0', 'kind': 'triangles', 'points': [0, 0, 0, 100, 0, 0, 0, 100, 0],
+         'rgba': [0.96, 0.51, 0.16, 0.85]}]}
+    assert 'shape' not in state.snapshot(since=shown['map_version'])
+
+
 def test_view_state_merges_map_updates_between_whole_maps():
     """occupancy/updates (map_updates.py) changes the cells it names and adds new ones (a
     provisional cell under a fingertip) until the next whole map replaces everything."""

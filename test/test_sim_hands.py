@@ -139,15 +139,35 @@ def test_the_holding_hands_region_grows_with_its_scale(cat):
     assert closest(large) >= 2.0 * radius * 0.99
 
 
+def test_the_first_strokes_start_in_the_focus_and_it_is_explored_most(cat):
+    places, _ = cat.sample_surface(2000, np.random.default_rng(4))
+    centre = places[np.argmax(places[:, 0])]          # the figure's far end in x
+    radius = 0.03
+    focused = explore(cat, 30.0, RATE, np.random.default_rng(5),
+                      replace(FAST, focus_centre=tuple(centre), focus_radius=radius))
+    plain = explore(cat, 30.0, RATE, np.random.default_rng(5), FAST)
+    for f in range(3):
+        first = np.flatnonzero(focused.kind[f] == KIND['stroke'])[0]
+        assert np.linalg.norm(focused.positions[f, first] - centre) <= radius + 0.005
+
+    def share(ex):
+        """Of the strokes' starts, the share in the focus."""
+        starts = [ex.positions[f, a] for f in range(3) for a, _ in runs(ex.kind[f] == KIND['stroke'])]
+        return np.mean(np.linalg.norm(np.array(starts) - centre, axis=1) <= radius)
+    assert share(focused) > 2 * share(plain)
+
+
 def test_hand_settings_are_parsed_with_their_ranges_and_refused_by_name():
     assert parse_hand_setting('liftoff_height_range=0.01,0.04') == ('liftoff_height_range',
                                                                     (0.01, 0.04))
     assert parse_hand_setting('speed_profile=bell') == ('speed_profile', 'bell')
     assert parse_hand_setting('tremor_amplitude=0.0005') == ('tremor_amplitude', 0.0005)
     assert parse_hand_setting('liftoff_speed_range=none') == ('liftoff_speed_range', None)
+    assert parse_hand_setting('focus_centre=0.03,0,-0.01') == ('focus_centre', (0.03, 0.0, -0.01))
     for bad, says in (('lift_height=0.01', 'NAME one of'), ('speed_profile=jerky', 'wave, bell'),
                       ('liftoff_height_range=0.04,0.01', 'a <= b'),
-                      ('tremor_amplitude=1', '[0, 0.01] m'), ('hover_probability=x', 'a number')):
+                      ('tremor_amplitude=1', '[0, 0.01] m'), ('hover_probability=x', 'a number'),
+                      ('focus_centre=0.1,0', 'three numbers')):
         with pytest.raises(ValueError, match=says.replace('[', r'\[').replace(']', r'\]')):
             parse_hand_setting(bad)
     parser = make_parser()

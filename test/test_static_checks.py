@@ -53,11 +53,12 @@ def test_mypy_checks_the_cores_the_docs_name():
 ALLOWED_IMPORTS = {
     'inhand_common': set(),
     'polhemus_liberty': {'inhand_common'},
-    'inhand_mapping': {'inhand_common'},
-    'inhand_stereo': {'inhand_common', 'inhand_mapping'},
-    'inhand_sim': {'inhand_common', 'inhand_mapping', 'inhand_stereo'},
-    'inhand_tools': {'inhand_common', 'inhand_mapping', 'inhand_stereo'},
-    'inhand_view': {'inhand_common', 'inhand_mapping', 'inhand_tools'},
+    'inhand_shape': {'inhand_common'},
+    'inhand_mapping': {'inhand_common', 'inhand_shape'},
+    'inhand_stereo': {'inhand_common', 'inhand_mapping', 'inhand_shape'},
+    'inhand_sim': {'inhand_common', 'inhand_mapping', 'inhand_stereo', 'inhand_shape'},
+    'inhand_tools': {'inhand_common', 'inhand_mapping', 'inhand_stereo', 'inhand_shape'},
+    'inhand_view': {'inhand_common', 'inhand_mapping', 'inhand_tools', 'inhand_shape'},
 }
 
 

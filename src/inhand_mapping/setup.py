@@ -21,6 +21,7 @@ setup(
         'console_scripts': [
             'registration_node = inhand_mapping.nodes.registration_node:main',
             'occupancy_node = inhand_mapping.nodes.occupancy_node:main',
+            'shape_node = inhand_mapping.nodes.shape_node:main',
         ],
     },
 )

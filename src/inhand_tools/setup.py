@@ -29,6 +29,7 @@ setup(
             'topic_echo = inhand_tools.commands.topic_echo:main',
             'map_metrics = inhand_tools.commands.map_metrics:main',
             'render_map = inhand_tools.commands.render_map:main',
+            'extract_shape = inhand_tools.commands.extract_shape:main',
         ],
     },
 )

@@ -143,6 +143,13 @@ class ExplorationSettings:
     tremor_amplitude: float = 0.0                # m: physiological tremor of every fingertip
     tremor_frequency: float = 10.0               # Hz
     held_scale: float = 1.0                      # the holding hand's region, scaled (radii)
+    # Where a person takes an object first and keeps coming back to (its handle, the
+    # paper's "most explored" and "first touched" region): each finger's first stroke
+    # starts within focus_radius of focus_centre (object frame, m) and later strokes start
+    # there focus_weight times as often. None: no such place.
+    focus_centre: tuple | None = None
+    focus_radius: float = 0.03                   # m
+    focus_weight: float = 4.0
 
 
 # The hand's properties beyond the default hand, and their defaults (sessions written with
@@ -150,7 +157,7 @@ class ExplorationSettings:
 HAND_DEFAULTS = {name: getattr(ExplorationSettings(), name) for name in (
     'stroke_length_range', 'speed_profile', 'liftoff_height_range', 'liftoff_speed_range',
     'liftoff_angle_range', 'hover_probability', 'hover_height_range', 'tremor_amplitude',
-    'tremor_frequency', 'held_scale')}
+    'tremor_frequency', 'held_scale', 'focus_centre', 'focus_radius', 'focus_weight')}
 
 
 # What each hand property takes, for command lines: (kind, low, high, unit). Ranges are two
@@ -166,6 +173,9 @@ _HAND_VALUES = {
     'tremor_amplitude': ('number', 0.0, 0.01, 'm'),
     'tremor_frequency': ('number', 0.1, 50.0, 'Hz'),
     'held_scale': ('number', 0.0, 5.0, ''),
+    'focus_centre': ('point', -0.5, 0.5, 'm'),
+    'focus_radius': ('number', 0.005, 0.2, 'm'),
+    'focus_weight': ('number', 1.0, 100.0, ''),
     'transit_speed': ('number', 0.05, 3.0, 'm/s'),
     'speed_variation': ('number', 0.0, 0.9, ''),
 }
@@ -183,18 +193,19 @@ def parse_hand_setting(text: str) -> tuple[str, object]:
         if value not in low:
             raise ValueError(f'{name}={value}: choose one of {", ".join(low)}')
         return name, value
-    if kind == 'range' and value.lower() == 'none' and HAND_DEFAULTS.get(name, 0) is None:
+    if kind in ('range', 'point') and value.lower() == 'none' and HAND_DEFAULTS.get(name, 0) is None:
         return name, None
     try:
         numbers = tuple(float(v) for v in value.split(','))
     except ValueError:
         numbers = ()
-    count = 2 if kind == 'range' else 1
+    count = {'range': 2, 'point': 3}.get(kind, 1)
     if len(numbers) != count or not all(low <= v <= high for v in numbers) or (
             kind == 'range' and numbers[0] > numbers[1]):
-        shape = 'two numbers a,b with a <= b' if kind == 'range' else 'a number'
+        shape = {'range': 'two numbers a,b with a <= b', 'point': 'three numbers x,y,z'}.get(
+            kind, 'a number')
         raise ValueError(f'{name}={value}: {shape} in [{low:g}, {high:g}] {unit}'.rstrip())
-    return name, (numbers if kind == 'range' else numbers[0])
+    return name, (numbers if count > 1 else numbers[0])
 
 
 def speed_range_around(mean: float, spread: float = 0.2) -> tuple[float, float]:
@@ -756,6 +767,7 @@ class _Explorer:
         self.explored = {key: np.zeros(len(pool.starts)) for key, pool in self.pools.items()}
         self.fingers = [self._arriving(name) for name in FINGERS]
         self.events: list = []                       # (finger, kind, t_start, t_end)
+        self.started: set[str] = set()               # fingers that chose a stroke already
 
     def _arriving(self, name: str) -> _Finger:
         """A finger where the hand arrives from: on its side, a few cm from the object,
@@ -798,6 +810,11 @@ class _Explorer:
         w = np.exp(-d / st.neighbourhood)
         w *= np.exp(st.side_preference * (pool.start_normals @ finger.side))
         w *= np.where(self.explored[self.grip_of[gi].name] > 0, st.explored_weight, 1.0)
+        if st.focus_centre is not None:
+            focus = np.linalg.norm(pool.starts - np.asarray(st.focus_centre), axis=1) <= st.focus_radius
+            first = finger.name not in self.started and focus[~pool.used].any()
+            w *= np.where(focus, st.focus_weight, 0.0 if first else 1.0)
+            self.started.add(finger.name)
         w = np.where(pool.used, 0.0, w)
         if w.sum() <= 0:
             pool.used[:] = False

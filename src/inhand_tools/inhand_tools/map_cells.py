@@ -17,7 +17,6 @@
 
 from __future__ import annotations
 
-import math
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from inhand_common.bag_source import BagSource
+from inhand_common.cell_lattice import Lattice, cell_indices, infer_lattice
 
 __all__ = ['CLOUD_TOPICS', 'FusedMaps', 'Lattice', 'LocalMaps', 'MapCells', 'cell_indices',
            'infer_lattice', 'is_bag', 'load_fused_maps', 'load_local_cells', 'load_map']
@@ -34,49 +34,6 @@ POINT_CLOUD2 = 'sensor_msgs/msg/PointCloud2'
 
 # What numpy raises for a file that is not an NPZ archive (or is a damaged one).
 _NOT_AN_ARCHIVE = (OSError, ValueError, EOFError, zipfile.BadZipFile)
-
-
-@dataclass(frozen=True)
-class Lattice:
-    """Cubic cells of edge ``resolution``; ``origin`` is the corner of cell (0, 0, 0)."""
-
-    resolution: float
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.resolution) and self.resolution > 0):
-            raise ValueError(f'cell size must be positive, not {self.resolution!r}')
-
-
-def infer_lattice(centres, resolution: float | None = None) -> Lattice:
-    """The lattice of a set of cell centres (a PLY or a recorded cloud carries none).
-
-    The cell edge is the smallest gap between distinct centre coordinates on any axis
-    (``resolution`` overrides it); the origin puts the centres at half-cell positions.
-    """
-    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
-    if len(centres) == 0:
-        raise ValueError('no cells to infer the cell size from')
-    if resolution is None:
-        gaps = []
-        for axis in range(3):
-            values = np.unique(np.round(centres[:, axis], 7))
-            step = np.diff(values)
-            step = step[step > 1e-6]
-            if step.size:
-                gaps.append(step.min())
-        if not gaps:
-            raise ValueError('cannot infer the cell size from a single cell: give it '
-                             '(--resolution)')
-        resolution = float(np.round(min(gaps), 6))
-    origin = centres[0] - 0.5 * resolution
-    return Lattice(float(resolution), tuple(float(v) for v in origin))
-
-
-def cell_indices(points, lattice: Lattice) -> np.ndarray:
-    """Integer cell index (n, 3) of each point."""
-    points = np.asarray(points, dtype=float).reshape(-1, 3)
-    return np.floor((points - np.asarray(lattice.origin)) / lattice.resolution).astype(np.int64)
 
 
 @dataclass

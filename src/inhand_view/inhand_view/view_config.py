@@ -32,8 +32,8 @@ VIEW_PARAMETERS = (
               minimum=0.001, maximum=1.0),
     ParamSpec('max_cells', 100000, 'Most map cells the page draws (the most probable first)',
               minimum=1, maximum=10_000_000),
-    ParamSpec('service_timeout', 10.0, 'Seconds a reset or save waits for the occupancy '
-              "node's answer", minimum=0.1, maximum=600.0),
+    ParamSpec('service_timeout', 30.0, 'Seconds a reset, save or shape extraction waits for '
+              "its node's answer", minimum=0.1, maximum=600.0),
 )
 
 

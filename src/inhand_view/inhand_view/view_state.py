@@ -135,6 +135,7 @@ class ViewState:
         self._calls: dict[str, dict[str, Any]] = {}
         self._topics = 0
         self._foxglove: dict[str, Any] = {}
+        self._shape: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ map
     def set_map(self, cells: np.ndarray, frame: str = MAP_FRAME) -> None:
@@ -323,6 +324,17 @@ class ViewState:
             for status in statuses:
                 self._diagnostics[status['name']] = dict(status)
 
+    def set_shape(self, items: Sequence[tuple[str, str, np.ndarray, Sequence[float]]],
+                  frame: str = MAP_FRAME) -> None:
+        """The shape_node's parts and grasps (``shape/parts``): (name, kind ``triangles`` or
+        ``lines``, points (N, 3) m, rgba 0-1) each, in ``frame``."""
+        with self.lock:
+            self._shape = {'frame': frame, 'items': [
+                {'name': name, 'kind': kind, 'points': _units(points),
+                 'rgba': [round(float(c), 3) for c in rgba]} for name, kind, points, rgba in items]}
+            # sent with the map, when the page's version is behind (it changes on request)
+            self.map_version += 1
+
     def set_services(self, available: dict[str, bool]) -> None:
         with self.lock:
             self._services = dict(available)
@@ -334,8 +346,8 @@ class ViewState:
 
     # ------------------------------------------------------------------ the page's view
     def snapshot(self, since: int | None = None) -> dict[str, Any]:
-        """Everything the page shows; the map's cells only when ``since`` is not the
-        current map version."""
+        """Everything the page shows; the map's cells (and the shape node's parts) only when
+        ``since`` is not the current map version."""
         with self.lock:
             if self._map_dirty:
                 self._encode_map()
@@ -361,4 +373,5 @@ class ViewState:
             }
             if since != self.map_version:
                 state['map'] = dict(self._cells, colour=self._cell_colours())
+                state['shape'] = self._shape
         return state

@@ -140,7 +140,9 @@ def make_parser() -> argparse.ArgumentParser:
                         'liftoff_angle_range=0,45 (degrees from the normal), '
                         'hover_probability=0.2, hover_height_range=0.002,0.006 (m), '
                         'tremor_amplitude=0.0005 (m), tremor_frequency=10 (Hz), '
-                        'held_scale=1.5, transit_speed=0.3 (m/s), speed_variation=0.3')
+                        'held_scale=1.5, transit_speed=0.3 (m/s), speed_variation=0.3, '
+                        'focus_centre=0.05,0,0 (object frame, m: where the hand starts and comes '
+                        'back to most, e.g. a handle), focus_radius=0.03 (m), focus_weight=4')
     parser.add_argument('--duration', type=number(above=0.0, at_most=24 * 3600, unit='seconds'),
                         required=True, metavar='SECONDS')
     parser.add_argument('--seed', type=_seed, required=True, metavar='N')

@@ -26,6 +26,7 @@ summary's ``bag check`` line says what could be checked: an MCAP file without CR
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -41,9 +42,11 @@ from inhand_mapping.map_products import MapProducts, save_map
 from inhand_mapping.mapping_config import OccupancyConfig, load_parameters, parse_overrides
 from inhand_mapping.node_health import outside_note
 from inhand_mapping.occupancy import OccupancyGrid
+from inhand_shape.shape_extraction import SHAPE_PARAMETERS
 from inhand_stereo.stereo_config import STEREO_PARAMETERS, StereoConfig
 from inhand_stereo.texture import CellTexture
 from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+from inhand_tools.commands.extract_shape import shape_parameters, write_shape_of_map
 
 EXIT_TRUNCATED = 1
 EXIT_BAD_INPUT = 2
@@ -75,7 +78,7 @@ def _with_vision(bag: Path, stereo: StereoConfig, occupancy: OccupancyConfig,
     return global_map, texture, notes
 
 
-def main(argv=None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = command_parser('build_map', __doc__, epilog_from=2)
     parser.add_argument('bag', type=Path, help='bag folder, or .mcap / .db3 file')
     parser.add_argument('--config', action='append', default=[],
@@ -87,16 +90,27 @@ def main(argv=None) -> int:
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                         help='override a parameter (repeatable)')
     parser.add_argument('--quiet', action='store_true', help='no progress line')
+    parser.add_argument('--shape', action='store_true',
+                        help="also the map's surface mesh, superquadric parts and grasps, as "
+                        'extract_shape writes them (its shape_node section of --config)')
     parser.add_argument('--force', action='store_true',
                         help='write over an existing map a map from a damaged or truncated '
                         'bag, or an empty map (either otherwise leaves the existing map '
                         'alone)')
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
     single_threaded_blas()     # as the nodes it stands for
     try:
         overrides = parse_overrides(args.set)
         registration, occupancy = load_parameters(
-            args.config, overrides, also_known={spec.name for spec in STEREO_PARAMETERS})
+            args.config, overrides, also_known={spec.name for spec in STEREO_PARAMETERS}
+            | {spec.name for spec in SHAPE_PARAMETERS})
+        shape_names = {spec.name for spec in SHAPE_PARAMETERS}
+        shape = shape_parameters(args.config, [pair for pair in args.set if pair.partition('=')[0].strip()
+                                               in shape_names]) if args.shape else None
         stereo = stereo_config_for_map(args.config, registration, occupancy, overrides)
         if not args.bag.exists():
             raise ValueError(f'{args.bag}: no such bag')
@@ -130,7 +144,8 @@ def main(argv=None) -> int:
         return EXIT_TRUNCATED
     paths = save_map(grid, args.output_dir, name, threshold, occupancy.frames.map_frame,
                      extra={'bag': str(args.bag), 'truncated': report['truncated'],
-                            'fusion': occupancy.fusion if global_map.fusing else 'none'},
+                            'fusion': occupancy.fusion if global_map.fusing else 'none',
+                            'registration_mode': registration.mode},
                      colours=None if texture is None else texture.colours,
                      textured=None if texture is None else texture.textured,
                      local_maps=global_map.local_maps())
@@ -163,6 +178,8 @@ def main(argv=None) -> int:
     if report.get('checked'):
         print('  bag check: ' + '; '.join(report['checked']))
     print('  wrote ' + ', '.join(str(p) for p in paths))
+    if shape is not None:
+        write_shape_of_map(existing, args.output_dir, name, shape, quiet=True)
     if report['truncated']:
         print(f'build_map: the bag is truncated or damaged: {report["truncated"]}. The map '
               f'above is built from the {report["messages"]} messages that could be read.',

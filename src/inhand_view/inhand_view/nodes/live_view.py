@@ -18,11 +18,15 @@ decoded into the page's state (view_state.py):
   ``/frame_transforms``;
 * ``diagnostics``: the latest status of each node that reports one.
 
-The page (``http://host:http_port/``, page_server.py) runs in threads of its own. Its reset
-and save buttons, and Foxglove's service calls of ``occupancy/reset`` and ``occupancy/save``
-(std_srvs/Trigger, offered under their names in this node's namespace), call the occupancy
-node's services of those names and pass the answer back. A port that is taken stops the
-node at start with one line naming the parameter and the port, exit code 2.
+* ``shape/parts`` (visualization_msgs/MarkerArray, the shape node's): the superquadric
+  parts and the grasps, drawn over the map.
+
+The page (``http://host:http_port/``, page_server.py) runs in threads of its own. Its reset,
+save and shape buttons, and Foxglove's service calls of ``occupancy/reset``,
+``occupancy/save`` and ``shape/extract`` (std_srvs/Trigger, offered under their names in
+this node's namespace), call the graph's services of those names and pass the answer back.
+A port that is taken stops the node at start with one line naming the parameter and the
+port, exit code 2.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from __future__ import annotations
 import time
 from functools import partial
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -37,6 +42,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker, MarkerArray
 
 from inhand_common.node_runner import run_node
 from inhand_common.parameters import ParameterError
@@ -60,7 +66,9 @@ except ImportError:
 
 SUBSCRIPTION_DEPTH = 100
 TICK = 0.2          # s: latched messages for new Foxglove subscribers, service availability
-SERVICES = ('reset', 'save')
+# the page's buttons and Foxglove's service calls -> the graph's services
+SERVICES = {'reset': 'occupancy/reset', 'save': 'occupancy/save', 'shape': 'shape/extract'}
+MARKER_KINDS = {Marker.TRIANGLE_LIST: 'triangles', Marker.LINE_LIST: 'lines'}
 
 
 class PortBusy(ParameterError):
@@ -89,10 +97,10 @@ class LiveView(Node):
         self.config = config = ViewConfig.from_parameters(declare_parameters(self,
                                                                              VIEW_PARAMETERS))
         self.state = ViewState(config.settings)
-        self._triggers = {name: self.create_client(Trigger, f'occupancy/{name}')
-                          for name in SERVICES}
-        self._service_names = {name: self.resolve_service_name(f'occupancy/{name}')
-                               for name in SERVICES}
+        self._triggers = {name: self.create_client(Trigger, service)
+                          for name, service in SERVICES.items()}
+        self._service_names = {name: self.resolve_service_name(service)
+                               for name, service in SERVICES.items()}
         try:
             self.page = PageServer(config.host, config.http_port, self.state.snapshot,
                                    {name: partial(self.call_trigger, name) for name in SERVICES})
@@ -112,6 +120,7 @@ class LiveView(Node):
             ('occupancy/cloud', self._on_map), ('occupancy/updates', self._on_updates),
             ('occupancy/occupied', self._on_occupied),
             ('occupancy/textured', self._on_textured), ('registration/points', self._on_points),
+            ('shape/parts', self._on_shape),
             ('transforms', partial(self._on_transform, static=False)),
             ('transforms_static', partial(self._on_transform, static=True)),
             ('diagnostics', self._on_diagnostics))}
@@ -209,6 +218,14 @@ class LiveView(Node):
     def _on_textured(self, data: bytes) -> None:
         self.state.set_textured(decode_point_cloud2(data).points)
 
+    def _on_shape(self, data: bytes) -> None:
+        markers = deserialize_message(data, MarkerArray).markers
+        drawn = [m for m in markers if m.action == Marker.ADD and m.type in MARKER_KINDS]
+        self.state.set_shape(
+            [(m.ns, MARKER_KINDS[m.type], np.array([[p.x, p.y, p.z] for p in m.points]).reshape(-1, 3),
+              (m.color.r, m.color.g, m.color.b, m.color.a)) for m in drawn],
+            drawn[0].header.frame_id if drawn else 'object')
+
     def _on_points(self, data: bytes) -> None:
         points, times, fingers = unpack_registered(decode_point_cloud2(data).points)
         if len(points):
@@ -244,11 +261,11 @@ class LiveView(Node):
 
     # ------------------------------------------------------------------ services
     def call_trigger(self, name: str) -> tuple[bool, str]:
-        """Call the occupancy node's ``occupancy/<name>`` (from the page's or Foxglove's
+        """Call the graph's service behind ``name`` (SERVICES; from the page's or Foxglove's
         threads: the executor answers); (success, message)."""
         client, service = self._triggers[name], self._service_names[name]
         if not client.service_is_ready():
-            success, message = False, f'{service} is not offered (no occupancy node?)'
+            success, message = False, f'{service} is not offered (is its node running?)'
         else:
             future = client.call_async(Trigger.Request())
             deadline = time.monotonic() + self.config.service_timeout

@@ -4,7 +4,7 @@
 //
 // URL parameters set the first view: frame=map|tracker,
 // projection=orthographic|perspective, colour=texture|probability, threshold=0..0.95,
-// explored=0|1, up=auto|+z|-z.
+// explored=0|1, parts=0|1, up=auto|+z|-z.
 'use strict';
 
 (() => {
@@ -15,6 +15,7 @@
     colour: params.get('colour') || 'texture',
     threshold: Number(params.get('threshold') || '0.6'),
     explored: params.get('explored') !== '0',
+    parts: params.get('parts') !== '0',
     up: params.get('up') || 'auto',
     yaw: -0.65, pitch: 0.5, zoom: 1, pan: [0, 0],
     target: [0, 0, 0], radius: 0.08, autoFit: true,
@@ -27,6 +28,7 @@
 
   let state = null;          // the latest /state.json
   let map = null;            // its decoded map (kept across polls while unchanged)
+  let shape = null;          // the shape node's parts and grasps, sent with the map
   let pollFailures = 0;
   let redrawPending = false;
 
@@ -188,6 +190,7 @@
     if (view.autoFit) fit();
     const cam = camera();
     drawCells(cam);
+    drawShape(cam);
     drawFrames(cam);
     drawTrails(cam);
     drawScaleBar(cam);
@@ -222,6 +225,57 @@
         ctx.strokeStyle = EXPLORED_COLOUR;
         ctx.lineWidth = Math.max(1, size * 0.12);
         ctx.strokeRect(s[0] - size / 2, s[1] - size / 2, size, size);
+      }
+    }
+  }
+
+  // The shape node's parts (shape/parts, after an "Extract shape"): triangles back to
+  // front, lit by how squarely they face the viewer; the grasps as segments on top.
+  function drawShape(cam) {
+    if (!state || !shape || !view.parts) return;
+    const pose = mapPose();
+    const unit = state.settings.position_unit;
+    const triangles = [];
+    const segments = [];
+    for (const item of shape.items) {
+      const p = item.points;
+      const screen = [];
+      for (let i = 0; i + 2 < p.length; i += 3) {
+        screen.push(cam.project(applyPose(pose, [p[i] * unit, p[i + 1] * unit, p[i + 2] * unit])));
+      }
+      if (item.kind === 'triangles') {
+        for (let t = 0; t + 2 < screen.length; t += 3) {
+          const [a, b, c] = [screen[t], screen[t + 1], screen[t + 2]];
+          if (!a || !b || !c) continue;
+          const u = [b[0] - a[0], a[1] - b[1], (b[2] - a[2]) * cam.scale];
+          const v = [c[0] - a[0], a[1] - c[1], (c[2] - a[2]) * cam.scale];
+          const n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+          const facing = Math.abs(n[2]) / (Math.hypot(n[0], n[1], n[2]) || 1);
+          triangles.push([(a[2] + b[2] + c[2]) / 3, a, b, c, item.rgba, 0.35 + 0.65 * facing]);
+        }
+      } else {
+        for (let s = 0; s + 1 < screen.length; s += 2) {
+          if (screen[s] && screen[s + 1]) segments.push([screen[s], screen[s + 1], item.rgba]);
+        }
+      }
+    }
+    triangles.sort((x, y) => x[0] - y[0]);            // far first
+    for (const [, a, b, c, rgba, light] of triangles) {
+      ctx.fillStyle = `rgba(${Math.round(rgba[0] * 255 * light)},${Math.round(rgba[1] * 255 * light)},`
+        + `${Math.round(rgba[2] * 255 * light)},${rgba[3]})`;
+      ctx.beginPath();
+      ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.lineTo(c[0], c[1]);
+      ctx.closePath();
+      ctx.fill();
+    }
+    const ratio = window.devicePixelRatio || 1;
+    for (const [a, b, rgba] of segments) {
+      ctx.strokeStyle = css(rgba.slice(0, 3).map((c) => Math.round(c * 255)));
+      ctx.lineWidth = 2 * ratio;
+      ctx.beginPath(); ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.stroke();
+      for (const end of [a, b]) {
+        ctx.beginPath(); ctx.arc(end[0], end[1], 3 * ratio, 0, 2 * Math.PI);
+        ctx.fillStyle = ctx.strokeStyle; ctx.fill();
       }
     }
   }
@@ -383,10 +437,11 @@
       $('foxglove').innerHTML = `Open connection &rarr; Foxglove WebSocket &rarr; <code>ws://${host}:${fox.port}</code>`
         + `<br>frames on <code>${fox.frames}</code>; services ${fox.services.map((s) => `<code>${s}</code>`).join(', ')}`;
     }
-    for (const name of ['reset', 'save']) {
+    const services = { reset: 'occupancy/reset', save: 'occupancy/save', shape: 'shape/extract' };
+    for (const [name, service] of Object.entries(services)) {
       const ok = state.services[name];
       $(name).disabled = !ok;
-      $(name).title = ok ? `occupancy/${name}` : `occupancy/${name} is not offered (no occupancy node?)`;
+      $(name).title = ok ? service : `${service} is not offered (is its node running?)`;
     }
     const options = $('frame').options;
     options[0].textContent = `${state.frames.map_frame} (the map's frame)`;
@@ -401,7 +456,10 @@
       const response = await fetch(`state.json${since}`, { cache: 'no-store' });
       if (!response.ok) throw new Error(`HTTP ${response.status}`);
       const next = await response.json();
-      if (next.map) map = decodeMap(next.map, next.settings.position_unit);
+      if (next.map) {
+        map = decodeMap(next.map, next.settings.position_unit);
+        shape = next.shape;
+      }
       state = next;
       pollFailures = 0;
       $('status').className = '';
@@ -420,7 +478,7 @@
   async function call(name) {
     const answer = $('answer');
     answer.className = '';
-    answer.textContent = `occupancy/${name}…`;
+    answer.textContent = `${name}…`;
     try {
       const response = await fetch(`call/${name}`, { method: 'POST' });
       const result = await response.json();
@@ -447,9 +505,12 @@
     });
     $('explored').checked = view.explored;
     $('explored').addEventListener('change', () => { view.explored = $('explored').checked; redraw(); });
+    $('parts').checked = view.parts;
+    $('parts').addEventListener('change', () => { view.parts = $('parts').checked; redraw(); });
     $('fit').addEventListener('click', () => { view.autoFit = true; redraw(); });
     $('reset').addEventListener('click', () => call('reset'));
     $('save').addEventListener('click', () => call('save'));
+    $('shape').addEventListener('click', () => call('shape'));
 
     let drag = null;
     canvas.addEventListener('pointerdown', (e) => {

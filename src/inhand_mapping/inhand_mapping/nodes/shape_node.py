@@ -1,0 +1,110 @@
+"""ROS 2 node ``shape_node``: the map's surface mesh, superquadric parts and grasps on request.
+
+Subscribes ``occupancy/occupied`` (the occupancy node's occupied cells, latched). The service
+``shape/extract`` (std_srvs/Trigger) runs the shape extraction (inhand_shape.shape_extraction)
+on the latest map and publishes, reliable and transient-local, in the map's frame:
+
+* ``shape/parts`` (visualization_msgs/MarkerArray): each part as a TRIANGLE_LIST (the
+  graspable part orange), the grasps as a LINE_LIST between their contacts;
+* ``shape/surface`` (visualization_msgs/Marker): the surface mesh, TRIANGLE_LIST.
+
+The answer is the one-line summary (parts, graspable part, grasps, holes); ``success`` is
+false when there is no map yet or no part explains the cells (the message says why).
+Parameters: friction, max_parts, occupied_threshold (the ``shape_node`` section).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from geometry_msgs.msg import Point
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import ColorRGBA
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker, MarkerArray
+
+from inhand_common.cell_lattice import infer_lattice
+from inhand_common.node_runner import run_node
+from inhand_common.point_cloud import from_point_cloud2
+from inhand_common.ros_parameters import declare_parameters
+from inhand_mapping.qos import LATCHED_QOS
+from inhand_shape.shape_display import DisplayItem, part_items, surface_item
+from inhand_shape.shape_extraction import SHAPE_PARAMETERS, extract_shape
+
+MARKER_TYPES = {'triangles': Marker.TRIANGLE_LIST, 'lines': Marker.LINE_LIST, 'points': Marker.POINTS}
+
+
+def _marker(item: DisplayItem, index: int, frame_id: str, stamp) -> Marker:
+    marker = Marker()
+    marker.header.frame_id = frame_id
+    marker.header.stamp = stamp
+    marker.ns = item.name
+    marker.id = index
+    marker.type = MARKER_TYPES[item.kind]
+    marker.action = Marker.ADD
+    marker.pose.orientation.w = 1.0
+    width = 0.002 if item.kind != 'triangles' else 1.0
+    marker.scale.x = marker.scale.y = marker.scale.z = width
+    marker.color = ColorRGBA(r=item.rgba[0], g=item.rgba[1], b=item.rgba[2], a=item.rgba[3])
+    marker.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in item.points]
+    return marker
+
+
+class ShapeNode(Node):
+    def __init__(self):
+        super().__init__('shape_node')
+        self.parameters = declare_parameters(self, SHAPE_PARAMETERS)
+        self._cells = None
+        self._frame_id = 'object'
+        self.create_subscription(PointCloud2, 'occupancy/occupied', self._on_map, LATCHED_QOS)
+        self._parts = self.create_publisher(MarkerArray, 'shape/parts', LATCHED_QOS)
+        self._surface = self.create_publisher(Marker, 'shape/surface', LATCHED_QOS)
+        self.create_service(Trigger, 'shape/extract', self._on_extract)
+        self.get_logger().info(
+            f"ready: shape/extract on the latest occupancy/occupied (friction "
+            f"{self.parameters['friction']:g}, at most {self.parameters['max_parts']} parts)")
+
+    def _on_map(self, msg: PointCloud2) -> None:
+        self._cells = from_point_cloud2(msg)
+        self._frame_id = msg.header.frame_id or 'object'
+
+    def _on_extract(self, _request, response):
+        cells = self._cells
+        if cells is None or len(cells) == 0:
+            response.success = False
+            response.message = 'no map yet: nothing on occupancy/occupied (is occupancy_node running?)'
+            return response
+        centres = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(np.float64)
+        lattice = infer_lattice(centres) if len(centres) > 1 else None
+        if lattice is None:
+            response.success, response.message = False, 'the map has one occupied cell: nothing to fit'
+            return response
+        started = time.monotonic()
+        result = extract_shape(centres, cells['intensity'], cells['hits'], cells['first_touch'],
+                               resolution=lattice.resolution, origin=lattice.origin,
+                               threshold=self.parameters['occupied_threshold'],
+                               friction=self.parameters['friction'],
+                               max_parts=self.parameters['max_parts'], frame_id=self._frame_id)
+        stamp = self.get_clock().now().to_msg()
+        array = MarkerArray()
+        clear = Marker()
+        clear.header.frame_id = self._frame_id
+        clear.action = Marker.DELETEALL
+        array.markers = [clear] + [_marker(item, k, self._frame_id, stamp)
+                                   for k, item in enumerate(part_items(result))]
+        self._parts.publish(array)
+        self._surface.publish(_marker(surface_item(result), 0, self._frame_id, stamp))
+        response.success = result.decomposition.reason is None
+        response.message = result.summary()
+        self.get_logger().info(f'{response.message} ({time.monotonic() - started:.1f} s)')
+        return response
+
+
+def main(args=None) -> int:
+    return run_node('shape_node', ShapeNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,156 @@
+"""From a map's occupied cells to what a grasp planner uses, in one call, and its files.
+
+:func:`extract_shape` runs the surface mesh (surface_mesh.py), the superquadric parts
+(shape_parts.py), the graspable part and its grasps (grasps.py) on the cells above the
+occupancy threshold; :func:`write_shape_files` writes ``NAME_surface.ply|.obj|.stl`` and
+``NAME_parts.yaml`` atomically (all or none). The picture is drawn by inhand_tools.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import ArrayLike
+
+from inhand_common.array_types import Floats
+from inhand_common.atomic_file import atomic_file_set
+from inhand_common.parameters import ParamSpec
+from inhand_shape.grasps import Grasp, antipodal_grasps, graspable_scores
+from inhand_shape.shape_parts import MAX_PARTS, Decomposition, decompose
+from inhand_shape.surface_mesh import SurfaceMesh, surface_mesh
+
+__all__ = ['DEFAULT_FRICTION', 'MESH_FORMATS', 'SHAPE_PARAMETERS', 'ShapeResult', 'extract_shape',
+           'shape_file_names', 'write_shape_files']
+
+DEFAULT_FRICTION = 0.5     # a fingertip on wood or plastic
+MESH_FORMATS = ('ply', 'obj', 'stl')
+# The shape extraction's parameters (the shape_node section of a parameter file; extract_shape
+# reads the same section).
+SHAPE_PARAMETERS = (
+    ParamSpec('friction', DEFAULT_FRICTION, 'Coulomb friction coefficient of the grasp contacts '
+              '(force closure: the grasp axis inside both friction cones)', minimum=0.0, maximum=5.0),
+    ParamSpec('max_parts', MAX_PARTS, 'Most superquadric parts in a decomposition (1: one '
+              'superquadric)', minimum=1, maximum=10),
+    ParamSpec('occupied_threshold', 0.8, 'Cells at or above this occupancy probability are the '
+              'shape', minimum=0.5, maximum=0.999),
+)
+
+
+@dataclass(frozen=True, eq=False)
+class ShapeResult:
+    """Everything extracted from one map (module doc); ``graspable`` indexes ``parts``
+    (None without parts); ``seconds`` the time of each step."""
+
+    mesh: SurfaceMesh
+    decomposition: Decomposition
+    scores: Floats
+    graspable: int | None
+    grasps: list[Grasp]
+    friction: float
+    frame_id: str
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> str:
+        """One line for people."""
+        d = self.decomposition
+        mesh = (f'surface {len(self.mesh.faces):,} triangles, {self.mesh.holes} hole(s)'
+                if len(self.mesh.faces) else 'no surface')
+        if d.reason is not None:
+            return f'{mesh}; no parts: {d.reason}'
+        which = f'part {self.graspable}' if self.graspable is not None else 'none'
+        return (f'{mesh}; {len(d.parts)} part(s) explaining {d.total_cells - len(d.unexplained)} of '
+                f'{d.total_cells} cells; graspable: {which}, {len(self.grasps)} grasp(s)')
+
+    def as_dict(self) -> dict[str, Any]:
+        """The content of NAME_parts.yaml."""
+        d = self.decomposition
+        parts = []
+        for k, part in enumerate(d.parts):
+            parts.append({'index': k, **part.superquadric.as_dict(), 'cells': int(len(part.cells)),
+                          'residual': round(part.residual, 5), 'explained': round(part.explained, 3),
+                          'graspable_score': round(float(self.scores[k]), 3)})
+        return {'frame_id': self.frame_id, 'cells': d.total_cells,
+                'unexplained_cells': int(len(d.unexplained)), 'reason': d.reason,
+                'parts': parts, 'graspable_part': self.graspable, 'friction': self.friction,
+                'grasps': [g.as_dict() for g in self.grasps],
+                'surface': {'triangles': int(len(self.mesh.faces)), 'holes': self.mesh.holes,
+                            'area': round(self.mesh.area, 6),
+                            'boundary_length': round(self.mesh.boundary_length, 4)},
+                'seconds': {k: round(v, 3) for k, v in self.seconds.items()}}
+
+
+def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
+                  first_touch: ArrayLike, *, resolution: float, origin: ArrayLike = (0, 0, 0),
+                  threshold: float = 0.8, friction: float = DEFAULT_FRICTION,
+                  max_parts: int = MAX_PARTS, frame_id: str = 'object') -> ShapeResult:
+    """The shape of the map whose cells are given (centres (N, 3) m, probabilities, hits,
+    first-touch times; any cells, those at or above ``threshold`` are used)."""
+    if not 0 < threshold < 1:
+        raise ValueError(f'threshold {threshold}: must be in (0, 1)')
+    if not friction >= 0:
+        raise ValueError(f'friction {friction}: must be >= 0')
+    p = np.asarray(probabilities, dtype=float)
+    keep = p >= threshold
+    cells = np.asarray(centres, dtype=float).reshape(-1, 3)[keep]
+    seconds = {}
+    start = time.perf_counter()
+    mesh = surface_mesh(cells, resolution, origin)
+    seconds['mesh'] = time.perf_counter() - start
+    start = time.perf_counter()
+    parts = decompose(cells, p[keep], resolution=resolution, max_parts=max_parts)
+    seconds['parts'] = time.perf_counter() - start
+    scores = graspable_scores(parts.parts, np.asarray(hits)[keep], np.asarray(first_touch)[keep])
+    graspable = int(np.argmax(scores)) if len(parts.parts) else None
+    grasps: list[Grasp] = []
+    if graspable is not None:
+        start = time.perf_counter()
+        others = [q.superquadric.centre for k, q in enumerate(parts.parts) if k != graspable]
+        away = np.mean(others, axis=0) if others else None
+        grasps = antipodal_grasps(parts.parts[graspable].superquadric, friction, away_from=away)
+        seconds['grasps'] = time.perf_counter() - start
+    return ShapeResult(mesh, parts, scores, graspable, grasps, friction, frame_id, seconds)
+
+
+def shape_file_names(output_dir: str | Path, name: str) -> dict[str, Path]:
+    """What :func:`write_shape_files` writes (and the picture's name), by kind."""
+    folder = Path(output_dir)
+    files = {fmt: folder / f'{name}_surface.{fmt}' for fmt in MESH_FORMATS}
+    files.update(parts=folder / f'{name}_parts.yaml', picture=folder / f'{name}_shape.png')
+    return files
+
+
+def write_shape_files(result: ShapeResult, output_dir: str | Path, name: str,
+                      picture: bytes | None = None) -> list[Path]:
+    """Write the surface (PLY, OBJ, STL; none when there is no surface), the parts YAML and
+    the ``picture`` (PNG bytes) if given, all or none; the paths written."""
+    files = shape_file_names(output_dir, name)
+    Path(output_dir).mkdir(parents=True, exist_ok=True)
+    written = []
+    with atomic_file_set() as fileset:
+        if len(result.mesh.faces):
+            mesh = result.mesh.trimesh()
+            for fmt in MESH_FORMATS:
+                data = mesh.export(file_type=fmt)
+                with fileset.write(files[fmt]) as stream:
+                    stream.write(data if isinstance(data, bytes) else data.encode())
+                written.append(files[fmt])
+        else:
+            for fmt in MESH_FORMATS:
+                fileset.remove(files[fmt])
+        text = io.StringIO()
+        text.write(f'# Shape of the map (inhand_shape): {result.summary()}\n')
+        yaml.safe_dump(result.as_dict(), text, sort_keys=False, default_flow_style=None)
+        with fileset.write(files['parts']) as stream:
+            stream.write(text.getvalue().encode())
+        written.append(files['parts'])
+        if picture is not None:
+            with fileset.write(files['picture']) as stream:
+                stream.write(picture)
+            written.append(files['picture'])
+    return written

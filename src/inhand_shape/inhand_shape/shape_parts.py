@@ -1,0 +1,284 @@
+"""The occupied cells as one or several superquadric parts, or a clear reason for none.
+
+Decomposition by explained cells (the hierarchical use of EMS's outlier model): the robust fit
+(:func:`inhand_shape.superquadric.fit_superquadric`) of all cells settles on the shape that
+explains most of them and calls the rest outliers; the outliers that hang together (26-
+connected on the grid) are the other parts' cells, and each such group is fitted the same
+way, up to :data:`MAX_PARTS`. Then every cell goes to the part nearest to it and each part is
+fitted again on its own cells, so that a first fit that had to compromise (a cup's body
+pulled towards its handle) is redone without the other part.
+
+A cell *inside* a part counts as explained by it: a cup's inner wall, the far side of a thin
+shell. A part is reported only when it explains the cells (:data:`EXPLAINED_SHARE` of its
+cells within two sigma or one cell width, and at least :data:`MIN_PART_CELLS` cells); a map of
+scattered strays gives no part, with the reason. So do an empty map, too few cells, and cells
+that lie in one plane (a flat plate touched on one side has no thickness to fit).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage  # type: ignore[import-untyped]
+
+from inhand_common.array_types import Points, Weights
+from inhand_shape.superquadric import FitResult, Superquadric, fit_superquadric
+
+__all__ = ['EXPLAINED_SHARE', 'MAX_PARTS', 'MIN_PART_CELLS', 'Decomposition', 'Part',
+           'decompose', 'explains']
+
+MAX_PARTS = 5
+MIN_PART_CELLS = 25        # fewer cells than this cannot be told from strays
+MIN_PART_SHARE = 0.03      # ... nor can a group of less than this share of the cells
+EXPLAINED_SHARE = 0.6      # a part must have this share of its cells on or in it
+FLAT_SPREAD = 0.35         # cells: below this spread across their thinnest axis, a sheet
+REFITS = 2                 # rounds of assign-to-nearest and fit again
+WHOLE_SHARE = 0.85         # a fit of all the cells that explains this share is the part
+SEEDS = 4                  # compact seeds tried otherwise
+GROW_ROUNDS = 2            # fit, take the cells on it, fit again
+SUPPORTED_SHARE = 0.7      # of a part's surface must lie near its cells ...
+SUPPORT_REACH = 0.02       # m: ... within this (an untouched side of a small part is near)
+SUPPORT_SAMPLES = 500
+RIM_REACH = 2.0            # cells: a new part this close to a found one, all of it, ...
+RIM_SHARE = 0.8            # ... (this share of its cells) is that part's rim
+MERGE_SHARE = 0.85         # of each of two parts' cells one superquadric must explain to merge them
+
+
+@dataclass(frozen=True, eq=False)
+class Part:
+    """One superquadric part: its fit, the cells it explains (indices into the map's
+    occupied cells) and how well."""
+
+    superquadric: Superquadric
+    cells: NDArray[np.intp]
+    residual: float        # m, probability-weighted RMS distance of its inlier cells
+    explained: float       # share of its cells within tolerance or inside
+    sigma: float           # m, the surface's fitted spread
+
+
+@dataclass(frozen=True, eq=False)
+class Decomposition:
+    """The parts (largest first), the cells no part explains, and why there is no part
+    when there is none (``reason``; None when there are parts)."""
+
+    parts: list[Part]
+    unexplained: NDArray[np.intp]
+    reason: str | None = None
+    total_cells: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+def on_surface(fit: FitResult, points: Points, resolution: float) -> NDArray[np.bool_]:
+    """Cells on the fitted surface: within one cell width."""
+    return np.asarray(fit.superquadric.surface_distance(points) <= resolution)
+
+
+def supported(sq: Superquadric, points: Points) -> float:
+    """Share of the superquadric's surface within :data:`SUPPORT_REACH` of a cell: a shape
+    that lays one face on the cells and spreads far past them is not what they show."""
+    from scipy.spatial import cKDTree  # type: ignore[import-untyped]
+    samples = sq.surface_samples(SUPPORT_SAMPLES, np.random.default_rng(0))
+    distance, _ = cKDTree(points).query(samples, distance_upper_bound=SUPPORT_REACH)
+    return float(np.mean(np.isfinite(distance)))
+
+
+def explains(fit: FitResult, points: Points, resolution: float) -> NDArray[np.bool_]:
+    """Cells on the fitted surface or inside it."""
+    return on_surface(fit, points, resolution) | fit.superquadric.contains(points)
+
+
+def _groups(points: Points, members: NDArray[np.intp], resolution: float) -> list[NDArray[np.intp]]:
+    """``members`` split into 26-connected groups of cells, largest first."""
+    if len(members) == 0:
+        return []
+    index = np.floor(points[members] / resolution).astype(np.int64)   # centres sit mid-cell
+    low = index.min(axis=0)
+    grid = np.zeros(tuple(index.max(axis=0) - low + 1), dtype=bool)
+    grid[tuple((index - low).T)] = True
+    labels, count = ndimage.label(grid, structure=np.ones((3, 3, 3), dtype=bool))
+    label_of = labels[tuple((index - low).T)]
+    groups = [members[label_of == k] for k in range(1, count + 1)]
+    return sorted(groups, key=len, reverse=True)
+
+
+def _sheet_reason(points: Points, resolution: float) -> str | None:
+    """Why cells lying in one plane cannot be a solid part, or None."""
+    centred = points - points.mean(axis=0)
+    spreads = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(centred.T)), 0.0))
+    if spreads[0] < FLAT_SPREAD * resolution:
+        return (f'the {len(points)} occupied cells lie in one plane (spread '
+                f'{spreads[0] * 1000:.1f} mm across it, {spreads[2] * 1000:.0f} mm along it): a sheet '
+                'has no thickness to fit a solid part to; explore the other side or the edges')
+    return None
+
+
+def _fit_part(points: Points, weights: Weights, members: NDArray[np.intp], resolution: float,
+              start: Superquadric | None = None) -> tuple[Part | None, FitResult]:
+    """The part fitted to ``members`` (None when it does not explain them), and the fit;
+    ``start`` as for :func:`fit_superquadric`."""
+    fit = fit_superquadric(points[members], weights[members], resolution=resolution, start=start)
+    # only the cells on the surface vouch for it: a shape large enough to hold every cell
+    # explains nothing
+    surface = on_surface(fit, points[members], resolution)
+    share = float(np.average(surface, weights=weights[members]))
+    if share < EXPLAINED_SHARE or supported(fit.superquadric, points[members]) < SUPPORTED_SHARE:
+        return None, fit
+    return Part(fit.superquadric, members[surface], fit.residual, share, fit.sigma), fit
+
+
+def _seeds(points: Points, members: NDArray[np.intp], count: int) -> list[NDArray[np.intp]]:
+    """``members`` cut into ``count`` compact groups (k-means on position, fixed seed)."""
+    from scipy.cluster.vq import kmeans2  # type: ignore[import-untyped]
+    if count < 2:
+        return [members]
+    _, label = kmeans2(points[members], count, seed=0, minit='++')
+    return [members[label == k] for k in range(count) if np.count_nonzero(label == k) >= 10]
+
+
+def _grown(points: Points, weights: Weights, pool: NDArray[np.intp], seed: NDArray[np.intp],
+           resolution: float, smallest: int) -> Part | None:
+    """A part started on ``seed`` and grown over the cells of ``pool`` on its surface."""
+    members = seed
+    part: Part | None = None
+    for _ in range(GROW_ROUNDS):
+        candidate, fit = _fit_part(points, weights, members, resolution,
+                                   None if part is None else part.superquadric)
+        if candidate is None:
+            return part
+        part = candidate
+        grown = pool[on_surface(fit, points[pool], resolution)]
+        if len(grown) < smallest or np.array_equal(grown, members):
+            break
+        members = grown
+    return part
+
+
+def _is_rim(part: Part, found: list[Part], points: Points, resolution: float) -> bool:
+    """Whether nearly all of ``part``'s cells lie within :data:`RIM_REACH` cells of a part
+    already found."""
+    return bool(found) and float(_near_found(points[part.cells], found, resolution).mean()) >= RIM_SHARE
+
+
+def _near_found(points: Points, found: list[Part], resolution: float) -> NDArray[np.bool_]:
+    """Which points lie within :data:`RIM_REACH` cells of a found part's surface."""
+    near = np.zeros(len(points), dtype=bool)
+    for other in found:
+        near |= other.superquadric.surface_distance(points) <= RIM_REACH * resolution
+    return near
+
+
+def _next_part(points: Points, weights: Weights, pool: NDArray[np.intp], resolution: float,
+               smallest: int) -> Part | None:
+    """The part that explains most of ``pool``: the fit of all of it when that explains
+    nearly all, else the best grown from a few compact seeds."""
+    whole, _ = _fit_part(points, weights, pool, resolution)
+    if whole is not None and len(whole.cells) >= WHOLE_SHARE * len(pool):
+        return whole
+    # a shape through all of them that leaves many out is a compromise between parts: the
+    # seeds compete without it, and it is kept only when no seed gives a part
+    best: Part | None = None
+    for seed in _seeds(points, pool, min(SEEDS, len(pool) // smallest)):
+        part = _grown(points, weights, pool, seed, resolution, smallest)
+        if part is not None and (best is None or len(part.cells) > len(best.cells)):
+            best = part
+    return best if best is not None else whole
+
+
+def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution: float = 0.005,
+              max_parts: int = MAX_PARTS) -> Decomposition:
+    """The parts of the cells at ``points`` (N, 3) m weighted by ``weights`` (occupancy
+    probabilities), as the module doc describes; ``max_parts`` = 1 fits one superquadric."""
+    cells = np.asarray(points, dtype=float).reshape(-1, 3)
+    w = np.ones(len(cells)) if weights is None else np.asarray(weights, dtype=float)
+    everything = np.arange(len(cells))
+    if len(cells) == 0:
+        return Decomposition([], everything, 'the map has no occupied cells: nothing to fit', 0)
+    if len(cells) < MIN_PART_CELLS:
+        return Decomposition([], everything, f'only {len(cells)} occupied cells: a part needs at '
+                             f'least {MIN_PART_CELLS}', len(cells))
+    sheet = _sheet_reason(cells, resolution)
+    if sheet is not None:
+        return Decomposition([], everything, sheet, len(cells))
+    smallest = max(MIN_PART_CELLS, int(MIN_PART_SHARE * len(cells)))
+    parts: list[Part] = []
+    pool = everything
+    while len(parts) < max_parts and len(pool) >= smallest and not _sheet_reason(cells[pool], resolution):
+        if _near_found(cells[pool], parts, resolution).mean() >= RIM_SHARE:
+            break           # what is left is the found parts' rims, not another part
+        part = _next_part(cells, w, pool, resolution, smallest)
+        if part is None:
+            break
+        if _is_rim(part, parts, cells, resolution):
+            # cells just off a part already found (its rounded rim, a cap's edge): its own
+            pool = np.setdiff1d(pool, part.cells)
+            continue
+        parts.append(part)
+        inside = part.superquadric.contains(cells[pool])
+        pool = np.setdiff1d(pool[~inside], part.cells)
+        # what is left must hang together to be a part: strays between parts are not one
+        pool = np.concatenate([g for g in _groups(cells, pool, resolution) if len(g) >= smallest]
+                              or [np.zeros(0, dtype=np.intp)])
+    parts = _merged(cells, w, _refit(cells, w, parts, resolution, smallest), resolution)
+    if not parts:
+        return Decomposition([], everything, f'no superquadric explains the {len(cells)} occupied '
+                             f'cells (at least {EXPLAINED_SHARE:.0%} on it): they look like '
+                             'scattered strays, not a surface', len(cells))
+    explained = np.zeros(len(cells), dtype=bool)
+    for part in parts:
+        explained[part.cells] = True
+    return Decomposition(parts, everything[~explained], None, len(cells))
+
+
+def _refit(points: Points, weights: Weights, parts: list[Part], resolution: float,
+           smallest: int) -> list[Part]:
+    """Each cell to its nearest part (inside counts as distance 0), each part fitted again
+    on its own cells; parts left with too few cells or not explaining them are dropped."""
+    for _ in range(REFITS if len(parts) > 1 else 0):
+        distance = np.stack([np.where(p.superquadric.contains(points), 0.0,
+                                      p.superquadric.surface_distance(points)) for p in parts])
+        owner = np.argmin(distance, axis=0)
+        refitted = []
+        for k in range(len(parts)):
+            members = np.flatnonzero(owner == k)
+            if len(members) < smallest:
+                continue
+            part, _ = _fit_part(points, weights, members, resolution, parts[k].superquadric)
+            if part is not None:
+                refitted.append(part)
+        parts = refitted
+    return sorted(parts, key=lambda p: len(p.cells), reverse=True)
+
+
+def _merged(points: Points, weights: Weights, parts: list[Part], resolution: float) -> list[Part]:
+    """Two parts that one superquadric explains as well (:data:`MERGE_SHARE` of each one's
+    cells on it, and its surface supported by them) become one: a shape cut in pieces by an
+    untouched band (where the other hand held it) is one part. Only parts whose cells come
+    within :data:`SUPPORT_REACH` of each other are tried (a shape across a wider gap would
+    not be supported), and each pair once."""
+    from scipy.spatial import cKDTree
+    tried: set[frozenset[int]] = set()
+    merged = True
+    while merged and len(parts) > 1:
+        merged = False
+        trees = [cKDTree(points[p.cells]) for p in parts]
+        for a in range(len(parts)):
+            for b in range(a + 1, len(parts)):
+                pair = frozenset((id(parts[a]), id(parts[b])))
+                if pair in tried:
+                    continue
+                tried.add(pair)
+                gap, _ = trees[b].query(points[parts[a].cells], distance_upper_bound=SUPPORT_REACH)
+                if not np.isfinite(gap).any():
+                    continue
+                members = np.union1d(parts[a].cells, parts[b].cells)
+                part, _ = _fit_part(points, weights, members, resolution)
+                if part is not None and all(
+                        np.isin(parts[k].cells, part.cells).mean() >= MERGE_SHARE for k in (a, b)):
+                    parts = [p for k, p in enumerate(parts) if k not in (a, b)] + [part]
+                    merged = True
+                    break
+            if merged:
+                break
+    return sorted(parts, key=lambda p: len(p.cells), reverse=True)

@@ -1,0 +1,247 @@
+"""Shape from the map (inhand_shape): superquadrics, their robust fit, the surface mesh, parts,
+grasps, and the extract_shape command on a map of a bundled bag."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from inhand_shape.grasps import antipodal_grasps, graspable_scores
+from inhand_shape.known_shapes import KNOWN_SHAPES, union_mesh
+from inhand_shape.shape_parts import Part, decompose
+from inhand_shape.superquadric import Superquadric, fit_least_squares, fit_superquadric
+from inhand_shape.surface_mesh import surface_mesh
+
+WORKSPACE = Path(__file__).resolve().parents[1]
+RESOLUTION = 0.005
+CENTRE = np.array([0.25, 0.0, 0.06])
+
+
+def _sq(size_cm, shape, turn=(0.3, -0.2, 0.4)) -> Superquadric:
+    return Superquadric(np.array(size_cm) / 100, shape, Rotation.from_euler('xyz', turn).as_matrix(),
+                        CENTRE.copy())
+
+
+def _cells(sq: Superquadric, rng, keep=None, noise=0.001) -> np.ndarray:
+    """Map-like cells: surface samples with tracker noise, on a 5 mm lattice."""
+    points = sq.surface_samples(40_000, rng) + rng.normal(0, noise, (40_000, 3))
+    if keep is not None:
+        points = points[keep(points)]
+    return (np.unique(np.floor(points / RESOLUTION).astype(int), axis=0) + 0.5) * RESOLUTION
+
+
+def _chamfer(a: Superquadric, b: Superquadric, rng) -> float:
+    from scipy.spatial import cKDTree
+    pa, pb = a.surface_samples(3000, rng), b.surface_samples(3000, rng)
+    return 0.5 * (cKDTree(pa).query(pb)[0].mean() + cKDTree(pb).query(pa)[0].mean())
+
+
+def test_radial_distance_is_exact_on_a_sphere_and_the_mesh_lies_on_the_surface():
+    sphere = Superquadric(np.full(3, 0.03), (1.0, 1.0), np.eye(3), CENTRE)
+    points = CENTRE + np.array([[0.05, 0, 0], [0, 0.01, 0], [0, 0, -0.03]])
+    assert np.allclose(sphere.distance(points), [0.02, 0.02, 0.0], atol=1e-12)
+    assert list(sphere.contains(points)) == [False, True, True]
+    box = _sq((4, 2.5, 1.5), (0.1, 0.1))
+    vertices, faces = box.mesh(3)
+    assert np.allclose(box.inside_outside(vertices), 1.0, atol=1e-9)
+    normals = box.normals(vertices)
+    assert np.all(np.einsum('ij,ij->i', normals, vertices - box.centre) > 0)   # outward
+    assert box.volume == pytest.approx(0.08 * 0.05 * 0.03, rel=0.05)          # nearly a box
+
+
+@pytest.mark.parametrize('size, shape', [((4, 2.5, 1.5), (0.1, 0.1)), ((2, 2, 6), (0.1, 1.0)),
+                                         ((5, 3, 2), (1.0, 1.0)), ((3, 3, 3), (1.6, 1.6))])
+def test_the_fit_recovers_superquadrics_across_the_shape_range_from_partial_noisy_cells(size, shape):
+    rng = np.random.default_rng(3)
+    truth = _sq(size, shape)
+    # the lowest 15 % never touched (it stands on the table), and 10 % strays around it
+    cells = _cells(truth, rng, keep=lambda p: p[:, 2] > np.percentile(p[:, 2], 15))
+    strays = cells.mean(axis=0) + rng.uniform(-0.06, 0.06, (len(cells) // 10, 3))
+    fit = fit_superquadric(np.vstack([cells, strays]), resolution=RESOLUTION)
+    ours = _chamfer(fit.superquadric, truth, rng)
+    assert ours < 0.003, f'Chamfer {ours * 1000:.1f} mm'
+    assert np.linalg.norm(fit.superquadric.centre - truth.centre) < 0.008   # the bottom is missing
+    classic = fit_least_squares(np.vstack([cells, strays]), resolution=RESOLUTION)
+    assert ours < _chamfer(classic.superquadric, truth, rng)
+
+
+def test_the_surface_mesh_is_closed_where_the_cells_are_and_open_where_they_are_not():
+    rng = np.random.default_rng(4)
+    sphere = Superquadric(np.full(3, 0.04), (1.0, 1.0), np.eye(3), CENTRE)
+    closed = surface_mesh(_cells(sphere, rng), RESOLUTION)
+    assert closed.holes == 0 and closed.trimesh().is_watertight
+    assert closed.trimesh().volume > 0                                      # outward
+    assert np.median(sphere.distance(closed.vertices)) < 0.0015
+    cut = surface_mesh(_cells(sphere, rng, keep=lambda p: p[:, 2] > CENTRE[2] - 0.02), RESOLUTION)
+    assert cut.holes == 1                                                  # the untouched cap
+    assert cut.area < closed.area * 0.9
+    assert np.all(cut.vertices[:, 2] > CENTRE[2] - 0.02 - 2 * RESOLUTION)  # nothing invented
+    assert len(surface_mesh(np.zeros((0, 3)), RESOLUTION).faces) == 0
+
+
+def test_two_separate_shapes_are_two_parts_and_one_shape_is_one():
+    rng = np.random.default_rng(5)
+    body = _sq((3, 2.5, 2.5), (0.5, 0.5), (0, 0, 0))
+    other = Superquadric(np.array([0.02, 0.015, 0.015]), (1.0, 1.0), np.eye(3), CENTRE + [0.065, 0, 0])
+    cells = np.unique(np.vstack([_cells(body, rng), _cells(other, rng)]), axis=0)
+    result = decompose(cells, resolution=RESOLUTION)
+    assert result.reason is None and len(result.parts) == 2
+    small = min(result.parts, key=lambda p: p.superquadric.volume)
+    assert np.linalg.norm(small.superquadric.centre - other.centre) < 0.005
+    one = decompose(_cells(_sq((4, 3, 2), (1.0, 1.0)), rng), resolution=RESOLUTION)
+    assert len(one.parts) == 1
+
+
+def test_no_part_is_invented_for_an_empty_map_strays_or_a_sheet():
+    rng = np.random.default_rng(6)
+    empty = decompose(np.zeros((0, 3)), resolution=RESOLUTION)
+    assert not empty.parts and 'no occupied cells' in empty.reason
+    strays = CENTRE + rng.uniform(-0.1, 0.1, (120, 3))
+    scattered = decompose(strays, resolution=RESOLUTION)
+    assert not scattered.parts and 'strays' in scattered.reason
+    xy = np.stack(np.meshgrid(np.arange(20), np.arange(16)), -1).reshape(-1, 2) * RESOLUTION
+    plate = np.column_stack([xy, np.zeros(len(xy))]) + 0.0025
+    flat = decompose(plate, resolution=RESOLUTION)
+    assert not flat.parts and 'one plane' in flat.reason
+
+
+def test_grasps_are_in_force_closure_and_the_graspable_part_is_the_explored_one():
+    box = Superquadric(np.array([0.02, 0.015, 0.04]), (0.1, 0.1), np.eye(3), CENTRE)
+    grasps = antipodal_grasps(box, 0.3, count=4)
+    assert grasps
+    for grasp in grasps:
+        a, b = grasp.contacts
+        axis = (b - a) / np.linalg.norm(b - a)
+        na, nb = box.normals(np.stack([a, b]))
+        limit = np.cos(np.arctan(0.3))
+        assert -axis @ na >= limit - 1e-9 and axis @ nb >= limit - 1e-9
+        assert abs(grasp.approach @ axis) < 1e-6 and grasp.width <= 0.1
+    assert not antipodal_grasps(Superquadric(np.full(3, 0.03), (1.0, 1.0), np.eye(3), CENTRE), 0.0)
+    with pytest.raises(ValueError, match='friction'):
+        antipodal_grasps(box, -1.0)
+    parts = [Part(box, np.arange(0, 80), 0.001, 1.0, 0.001), Part(box, np.arange(80, 100), 0.001, 1.0, 0.001)]
+    hits = np.r_[np.ones(80), np.full(20, 6.0)]
+    first = np.r_[np.linspace(10, 100, 80), np.linspace(0, 5, 20)]
+    scores = graspable_scores(parts, hits, first)
+    assert np.argmax(scores) == 1
+
+
+def test_known_shapes_are_closed_meshes_the_simulator_takes():
+    from inhand_sim.mesh_objects import mesh_object
+    mesh, parts = union_mesh(KNOWN_SHAPES['cup'])
+    assert mesh.is_watertight
+    obj = mesh_object(mesh, 'cup', 'cup')
+    surface, _ = obj.sample_surface(2000, np.random.default_rng(0))
+    nearest = np.min([p.distance(surface) for p in parts], axis=0)
+    assert np.percentile(nearest, 95) < 0.0015
+
+
+@pytest.fixture(scope='module')
+def bottle_map(tmp_path_factory):
+    folder = tmp_path_factory.mktemp('shape')
+    subprocess.run([sys.executable, '-m', 'inhand_tools.commands.build_map',
+                    str(WORKSPACE / 'bags' / 'bottle_static'), '--config',
+                    str(WORKSPACE / 'config' / 'mapping_static.yaml'), '--output-dir', str(folder),
+                    '--name', 'bottle', '--quiet', '--shape'], check=True, capture_output=True)
+    return folder / 'bottle.npz'
+
+
+def test_build_map_shape_writes_the_shape_beside_the_map(bottle_map):
+    for suffix in ('_surface.ply', '_surface.obj', '_surface.stl', '_parts.yaml', '_shape.png'):
+        assert (bottle_map.parent / f'bottle{suffix}').stat().st_size > 0
+    assert yaml.safe_load((bottle_map.parent / 'bottle_parts.yaml').read_text())['parts']
+
+
+def test_extract_shape_writes_the_mesh_parts_and_picture_of_a_bundled_bags_map(bottle_map, tmp_path):
+    run = subprocess.run([sys.executable, '-m', 'inhand_tools.commands.extract_shape', str(bottle_map),
+                          '--output-dir', str(tmp_path), '--name', 'b'], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert 'graspable' in run.stdout
+    for suffix in ('_surface.ply', '_surface.obj', '_surface.stl', '_parts.yaml', '_shape.png'):
+        assert (tmp_path / f'b{suffix}').stat().st_size > 0
+    parts = yaml.safe_load((tmp_path / 'b_parts.yaml').read_text())
+    assert parts['parts'] and parts['graspable_part'] is not None
+    first = parts['parts'][0]
+    assert len(first['size']) == 3 and len(first['exponents']) == 2 and len(first['orientation']) == 4
+    # the bottle is about 7 cm across and 20 cm long (the bundled bag's object)
+    assert 0.05 < 2 * max(first['size']) < 0.3
+    assert all(len(g['contacts']) == 2 for g in parts['grasps'])
+    import trimesh
+    mesh = trimesh.load(tmp_path / 'b_surface.stl')
+    assert len(mesh.faces) == parts['surface']['triangles']
+
+
+def test_extract_shape_refuses_a_bad_parameter_with_its_name_and_range(bottle_map, tmp_path):
+    run = subprocess.run([sys.executable, '-m', 'inhand_tools.commands.extract_shape', str(bottle_map),
+                          '--output-dir', str(tmp_path), '--set', 'friction=-1'], capture_output=True,
+                         text=True)
+    assert run.returncode == 2
+    assert "'friction'" in run.stderr and '[0, 5]' in run.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_shape_node_answers_shape_extract_and_publishes_the_parts_and_surface(bottle_map):
+    """The graph's service: occupancy_node resumed from the bundled bag's map publishes
+    occupancy/occupied; the live page's "Extract shape" calls shape/extract on shape_node,
+    which answers with the summary and latches the markers; the page then holds the parts,
+    and a viewer that comes later gets the markers."""
+    import json
+
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from ros_helpers import BackgroundNode, running
+    from test_live_view import free_port, http, live_view_args, wait_for_page
+    config = str(WORKSPACE / 'config' / 'mapping_static.yaml')
+    page = f'http://127.0.0.1:{(http_port := free_port())}/'
+    with running(['occupancy_node', '--ros-args', '--params-file', config, '-p',
+                  f'initial_map:={bottle_map}', '-p', f'output_dir:={bottle_map.parent / "occ"}']), \
+            running(['shape_node', '--ros-args', '-p', 'friction:=0.8']), \
+            running(live_view_args(http_port, free_port())) as view:
+        wait_for_page(page, view)
+        deadline = time.monotonic() + 60
+        while True:     # until the services are up and the latched map has reached the node
+            answer = json.loads(http(page + 'call/shape', 'POST')[1])
+            if answer['success'] or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        assert answer['success'], answer
+        assert 'part(s)' in answer['message'] and 'graspable: part 0' in answer['message']
+        deadline = time.monotonic() + 20
+        while not (state := json.loads(http(page + 'state.json')[1])).get('shape'):
+            assert time.monotonic() < deadline, view.output()
+            time.sleep(0.2)
+        names = {item['name']: item for item in state['shape']['items']}
+        assert names['part 0']['kind'] == 'triangles' and len(names['part 0']['points']) % 9 == 0
+        assert names['grasps']['kind'] == 'lines'
+        viewer = BackgroundNode('test_shape_viewer')
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        got: dict = {}
+        viewer.node.create_subscription(MarkerArray, 'shape/parts',
+                                        lambda m: got.setdefault('parts', m), latched)
+        viewer.node.create_subscription(Marker, 'shape/surface',
+                                        lambda m: got.setdefault('surface', m), latched)
+        viewer.start()
+        try:
+            deadline = time.monotonic() + 20
+            while len(got) < 2:
+                assert time.monotonic() < deadline, f'got {list(got)}'
+                time.sleep(0.1)
+        finally:
+            viewer.close()
+    markers = got['parts'].markers
+    assert markers[0].action == Marker.DELETEALL
+    part = next(m for m in markers if m.ns == 'part 0')
+    assert part.type == Marker.TRIANGLE_LIST and len(part.points) % 3 == 0 and part.points
+    assert part.header.frame_id == got['surface'].header.frame_id != ''
+    grasps = [m for m in markers if m.ns == 'grasps']
+    assert grasps and grasps[0].type == Marker.LINE_LIST and len(grasps[0].points) % 2 == 0
+    assert got['surface'].type == Marker.TRIANGLE_LIST and len(got['surface'].points) > 300
