@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 __all__ = ['Lattice', 'cell_indices', 'infer_lattice']
 
@@ -27,19 +28,19 @@ class Lattice:
             raise ValueError(f'cell size must be positive, not {self.resolution!r}')
 
 
-def infer_lattice(centres, resolution: float | None = None) -> Lattice:
+def infer_lattice(centres: ArrayLike, resolution: float | None = None) -> Lattice:
     """The lattice of a set of cell centres (a PLY or a recorded cloud carries none).
 
     The cell edge is the smallest gap between distinct centre coordinates on any axis
     (``resolution`` overrides it); the origin puts the centres at half-cell positions.
     """
-    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
-    if len(centres) == 0:
+    points = np.asarray(centres, dtype=float).reshape(-1, 3)
+    if len(points) == 0:
         raise ValueError('no cells to infer the cell size from')
     if resolution is None:
         gaps = []
         for axis in range(3):
-            values = np.unique(np.round(centres[:, axis], 7))
+            values = np.unique(np.round(points[:, axis], 7))
             step = np.diff(values)
             step = step[step > 1e-6]
             if step.size:
@@ -48,11 +49,11 @@ def infer_lattice(centres, resolution: float | None = None) -> Lattice:
             raise ValueError('cannot infer the cell size from a single cell: give it '
                              '(--resolution)')
         resolution = float(np.round(min(gaps), 6))
-    origin = centres[0] - 0.5 * resolution
-    return Lattice(float(resolution), tuple(float(v) for v in origin))
+    x, y, z = (float(v) for v in points[0] - 0.5 * resolution)
+    return Lattice(float(resolution), (x, y, z))
 
 
-def cell_indices(points, lattice: Lattice) -> np.ndarray:
+def cell_indices(points: ArrayLike, lattice: Lattice) -> NDArray[np.int64]:
     """Integer cell index (n, 3) of each point."""
-    points = np.asarray(points, dtype=float).reshape(-1, 3)
-    return np.floor((points - np.asarray(lattice.origin)) / lattice.resolution).astype(np.int64)
+    flat = np.asarray(points, dtype=float).reshape(-1, 3)
+    return np.asarray(np.floor((flat - np.asarray(lattice.origin)) / lattice.resolution), dtype=np.int64)

@@ -1,33 +1,37 @@
 """The occupied cells as one or several superquadric parts, or a clear reason for none.
 
-Decomposition by explained cells (the hierarchical use of EMS's outlier model): the robust fit
-(:func:`inhand_shape.superquadric.fit_superquadric`) of all cells settles on the shape that
-explains most of them and calls the rest outliers; the outliers that hang together (26-
-connected on the grid) are the other parts' cells, and each such group is fitted the same
-way, up to :data:`MAX_PARTS`. Then every cell goes to the part nearest to it and each part is
-fitted again on its own cells, so that a first fit that had to compromise (a cup's body
-pulled towards its handle) is redone without the other part.
+Each part is searched for in the cells no part has taken yet (the *pool*, at first all of
+them) with the robust fit (:func:`inhand_shape.superquadric.fit_superquadric`): the fit of
+the whole pool when it explains :data:`WHOLE_SHARE` of it, else the best of fits grown from
+:data:`SEEDS` compact seeds (k-means; fit, take the pool's cells on it, fit again). The cells
+on a found part or inside it leave the pool (a cup's inner wall, the far side of a thin
+shell), and what is left must hang together (26-connected) to be searched again, up to
+:data:`MAX_PARTS`; a new part whose cells all lie within :data:`RIM_REACH` cells of a found
+one is that part's rim. Then every cell goes to the part nearest to it and each part is
+fitted again on its own cells (a first fit that had to compromise, a cup's body pulled
+towards its handle, is redone without the other part), and two parts one superquadric
+explains are merged (a shaft cut in two by the holding hand).
 
-A cell *inside* a part counts as explained by it: a cup's inner wall, the far side of a thin
-shell. A part is reported only when it explains the cells (:data:`EXPLAINED_SHARE` of its
-cells within two sigma or one cell width, and at least :data:`MIN_PART_CELLS` cells); a map of
-scattered strays gives no part, with the reason. So do an empty map, too few cells, and cells
-that lie in one plane (a flat plate touched on one side has no thickness to fit).
+A part is reported only when it explains its cells: :data:`EXPLAINED_SHARE` of them within
+one cell width of its surface, :data:`SUPPORTED_SHARE` of its surface within
+:data:`SUPPORT_REACH` of them, at least :data:`MIN_PART_CELLS` cells. A map of scattered strays
+gives no part, with the reason; so do an empty map, too few cells, and cells that lie in one
+plane (a flat plate touched on one side has no thickness to fit).
 """
-
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Points, Weights
+from inhand_common.cell_lattice import Lattice, cell_indices
 from inhand_shape.superquadric import FitResult, Superquadric, fit_superquadric
 
 __all__ = ['EXPLAINED_SHARE', 'MAX_PARTS', 'MIN_PART_CELLS', 'Decomposition', 'Part',
-           'decompose', 'explains']
+           'decompose']
 
 MAX_PARTS = 5
 MIN_PART_CELLS = 25        # fewer cells than this cannot be told from strays
@@ -67,7 +71,6 @@ class Decomposition:
     unexplained: NDArray[np.intp]
     reason: str | None = None
     total_cells: int = 0
-    notes: list[str] = field(default_factory=list)
 
 
 def on_surface(fit: FitResult, points: Points, resolution: float) -> NDArray[np.bool_]:
@@ -84,16 +87,11 @@ def supported(sq: Superquadric, points: Points) -> float:
     return float(np.mean(np.isfinite(distance)))
 
 
-def explains(fit: FitResult, points: Points, resolution: float) -> NDArray[np.bool_]:
-    """Cells on the fitted surface or inside it."""
-    return on_surface(fit, points, resolution) | fit.superquadric.contains(points)
-
-
 def _groups(points: Points, members: NDArray[np.intp], resolution: float) -> list[NDArray[np.intp]]:
     """``members`` split into 26-connected groups of cells, largest first."""
     if len(members) == 0:
         return []
-    index = np.floor(points[members] / resolution).astype(np.int64)   # centres sit mid-cell
+    index = cell_indices(points[members], Lattice(resolution))
     low = index.min(axis=0)
     grid = np.zeros(tuple(index.max(axis=0) - low + 1), dtype=bool)
     grid[tuple((index - low).T)] = True
@@ -121,7 +119,7 @@ def _fit_part(points: Points, weights: Weights, members: NDArray[np.intp], resol
     fit = fit_superquadric(points[members], weights[members], resolution=resolution, start=start)
     # only the cells on the surface vouch for it: a shape large enough to hold every cell
     # explains nothing
-    surface = on_surface(fit, points[members], resolution)
+    surface = fit.distances <= resolution     # on_surface of the cells it was fitted to
     share = float(np.average(surface, weights=weights[members]))
     if share < EXPLAINED_SHARE or supported(fit.superquadric, points[members]) < SUPPORTED_SHARE:
         return None, fit

@@ -33,6 +33,7 @@ on ``sqrt(a1 a2 a3) (F^e1 - 1)`` from the same starts, every cell counted, no ou
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -127,14 +128,12 @@ class Superquadric:
         """A closed triangle mesh of the surface: (vertices (V, 3) in the map frame, faces
         (F, 3)), outward oriented; the unit icosphere of ``subdivisions`` pushed onto the
         surface along its rays (so every vertex is exactly on it)."""
-        import trimesh
-        sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
-        directions = np.asarray(sphere.vertices, dtype=float)
+        directions, faces = _unit_sphere(subdivisions)
         # On the ray t * u the function is F(t u) = t^(2/e1) F(u): the surface is at
         # t = F(u)^(-e1/2).
         reach = np.exp(-self.shape[0] / 2 * _log_inside_outside(directions, self.size, *self.shape))
         vertices = (directions * reach[:, None]) @ self.rotation.T + self.centre
-        return vertices, np.asarray(sphere.faces, dtype=np.int64)
+        return vertices, faces
 
     def surface_samples(self, count: int, rng: np.random.Generator) -> Points:
         """``count`` points spread uniformly over the surface (by area)."""
@@ -155,6 +154,18 @@ class Superquadric:
                 'exponents': [round(float(v), 3) for v in self.shape],
                 'position': [round(float(v), 5) for v in self.centre],
                 'orientation': [round(float(v), 6) for v in self.quaternion]}
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_sphere(subdivisions: int) -> tuple[Points, NDArray[np.int64]]:
+    """The unit icosphere's vertices and faces, made once per level (read-only): every part
+    check samples a superquadric's surface, and making the sphere cost more than the rest."""
+    import trimesh
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    vertices = np.array(sphere.vertices, dtype=float)
+    faces = np.array(sphere.faces, dtype=np.int64)
+    vertices.flags.writeable = faces.flags.writeable = False
+    return vertices, faces
 
 
 def _log_inside_outside(local: Points, size: ArrayLike, e1: float, e2: float) -> Floats:
@@ -278,15 +289,6 @@ class _State:
     likelihood: float = -math.inf
 
 
-def _first_state(points: Points, start: tuple[Vector3, Matrix3, Vector3], shape: tuple[float, float],
-                 resolution: float) -> _State:
-    centre, frame, half = start
-    span = float(np.ptp(points, axis=0).max()) if len(points) > 1 else resolution
-    packing = _Parameters(frame, (resolution / 4, max(2 * span, resolution)))
-    return _State(packing.vector(half, shape, centre), packing,
-                  max(0.2 * float(np.mean(half)), resolution / 2))
-
-
 def _em(points: Points, weights: Weights, state: _State, resolution: float,
         outlier_ratio: float, iterations: int, sigma_cap: float = math.inf) -> _State:
     """``iterations`` EM steps (fewer when converged) from ``state``, sigma at most
@@ -315,10 +317,20 @@ def _em(points: Points, weights: Weights, state: _State, resolution: float,
     return _State(x, packing, sigma, float(np.sum(weights * np.log(likelihood))))
 
 
-def _state_of(sq: Superquadric, points: Points, sigma: float, resolution: float) -> _State:
-    """An EM state at ``sq``."""
-    span = float(np.ptp(points, axis=0).max())
-    packing = _Parameters(sq.rotation, (resolution / 4, max(2 * span, resolution)))
+def _packing(points: Points, base: Matrix3, resolution: float) -> _Parameters:
+    """The parameter packing around ``base``, sizes from a quarter cell to twice the cells'
+    span."""
+    span = float(np.ptp(points, axis=0).max()) if len(points) > 1 else resolution
+    return _Parameters(base, (resolution / 4, max(2 * span, resolution)))
+
+
+def _state_of(sq: Superquadric, points: Points, resolution: float,
+              sigma: float | None = None) -> _State:
+    """An EM state at ``sq``; ``sigma`` by default a fifth of its mean semi-axis (at least
+    half a cell)."""
+    packing = _packing(points, sq.rotation, resolution)
+    if sigma is None:
+        sigma = max(0.2 * float(np.mean(sq.size)), resolution / 2)
     return _State(packing.vector(sq.size, sq.shape, sq.centre), packing, sigma)
 
 
@@ -381,6 +393,17 @@ def _result(sq: Superquadric, points: Points, weights: Weights, sigma: float,
                      log_likelihood)
 
 
+def _prepared(points: ArrayLike, weights: ArrayLike | None
+              ) -> tuple[Points, Weights, Points, Weights]:
+    """(cells, weights, the subset the search uses, its weights); ValueError for fewer than
+    10 cells."""
+    cells = np.asarray(points, dtype=float)
+    if cells.ndim != 2 or cells.shape[1] != 3 or len(cells) < 10:
+        raise ValueError(f'a superquadric needs at least 10 cells, got {len(cells)}')
+    w = _weights_of(cells, weights)
+    return (cells, w, *_subset(cells, w, MAX_FIT_CELLS))
+
+
 def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
                      resolution: float = 0.005, outlier_ratio: float = 0.2,
                      start: Superquadric | None = None) -> FitResult:
@@ -389,22 +412,18 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
     module doc. ``resolution`` (the cell size) floors the surface's spread. ``start``: a
     superquadric near the answer (a fit of most of the same cells), searched from alone.
     ValueError for fewer than 10 points."""
-    cells = np.asarray(points, dtype=float)
-    if cells.ndim != 2 or cells.shape[1] != 3 or len(cells) < 10:
-        raise ValueError(f'a superquadric needs at least 10 cells, got {len(cells)}')
-    w = _weights_of(cells, weights)
-    fit_cells, fit_weights = _subset(cells, w, MAX_FIT_CELLS)
+    cells, w, fit_cells, fit_weights = _prepared(points, weights)
     if start is None:
         # A few EM steps from each start, then the most likely one and its switched twin
         # carried on to convergence.
-        states = [_em(fit_cells, fit_weights, _first_state(fit_cells, s, (1.0, 1.0), resolution),
+        states = [_em(fit_cells, fit_weights,
+                      _state_of(Superquadric(half, (1.0, 1.0), frame, centre), fit_cells, resolution),
                       resolution, outlier_ratio, EM_SCOUT_ITERATIONS)
-                  for s in _starts(fit_cells, fit_weights)]
+                  for centre, frame, half in _starts(fit_cells, fit_weights)]
         leader = max(states, key=lambda s: s.likelihood)
         candidates = [leader, _switched(leader)]
     else:
-        candidates = [_first_state(fit_cells, (start.centre, start.rotation, start.size), start.shape,
-                                   resolution)]
+        candidates = [_state_of(start, fit_cells, resolution)]
     # The cells' own spread is about a cell: a larger sigma would let one shape through
     # two parts pass for a fit of both.
     finals = [_em(fit_cells, fit_weights, state, resolution, outlier_ratio, EM_ITERATIONS,
@@ -418,7 +437,7 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
     if cut is not None:
         keep = TRIM_KEEP * _on_share(sq, fit_cells, fit_weights, resolution)
         # as cut; else refitted from the cut (the search then starts on the cells' side)
-        refitted = _em(fit_cells, fit_weights, _state_of(cut, fit_cells, sigma, resolution),
+        refitted = _em(fit_cells, fit_weights, _state_of(cut, fit_cells, resolution, sigma),
                        resolution, outlier_ratio, TRIM_ITERATIONS, sigma_cap=resolution)
         for candidate, state in ((cut, None), (refitted.packing.superquadric(refitted.x), refitted)):
             if _on_share(candidate, fit_cells, fit_weights, resolution) >= keep:
@@ -435,16 +454,11 @@ def fit_least_squares(points: ArrayLike, weights: ArrayLike | None = None, *,
                       resolution: float = 0.005) -> FitResult:
     """The classic fit (Solina and Bajcsy 1990, module doc) from the same starts; every cell
     counts as surface."""
-    cells = np.asarray(points, dtype=float)
-    if cells.ndim != 2 or cells.shape[1] != 3 or len(cells) < 10:
-        raise ValueError(f'a superquadric needs at least 10 cells, got {len(cells)}')
-    w = _weights_of(cells, weights)
-    fit_cells, fit_weights = _subset(cells, w, MAX_FIT_CELLS)
+    cells, w, fit_cells, fit_weights = _prepared(points, weights)
     scale = np.sqrt(fit_weights)
     best: tuple[float, Superquadric] | None = None
     for centre, frame, half in _starts(fit_cells, fit_weights):
-        span = float(np.ptp(fit_cells, axis=0).max())
-        packing = _Parameters(frame, (resolution / 4, max(2 * span, resolution)))
+        packing = _packing(fit_cells, frame, resolution)
 
         def residuals(v: Floats, packing: _Parameters = packing) -> Floats:
             rotation = packing.base @ _rotation_matrix(v[5:8])

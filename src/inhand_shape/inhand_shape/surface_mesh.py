@@ -37,6 +37,7 @@ from scipy.sparse.csgraph import breadth_first_order, connected_components, mini
 from scipy.spatial import cKDTree  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Floats, Points
+from inhand_common.cell_lattice import Lattice, cell_indices
 
 __all__ = ['NORMAL_RADIUS', 'REACH', 'SurfaceMesh', 'cell_normals', 'surface_mesh']
 
@@ -171,7 +172,8 @@ def surface_mesh(points: ArrayLike, resolution: float, origin: ArrayLike = (0.0,
     normals, (rows, cols) = cell_normals(cells, resolution)
     normals = _orient(cells, normals, rows, cols)
     # the lattice of cell centres around the cells, in cell units
-    index = np.rint((cells - np.asarray(origin, dtype=float)) / resolution - 0.5).astype(np.int64)
+    x, y, z = (float(v) for v in np.ravel(origin))
+    index = cell_indices(cells, Lattice(resolution, (x, y, z)))
     pad = int(math.ceil(REACH)) + 1
     low = index.min(axis=0) - pad
     shape = tuple(int(v) for v in index.max(axis=0) - low + pad + 1)
