@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|texture-sessions|quality|validation|fingers|shape|startup|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|texture-sessions|quality|validation|fingers|shape|explore|startup|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -51,12 +51,17 @@
 #                      size/exponent/centre errors, Chamfer against the classic fit and the
 #                      dense-truth fit, times (test/benchmarks/bench_shape.py: --shapes,
 #                      --modes, --keep DIR, --duration S)
+#   explore            guided exploration (the predicted surface's next touches) against random
+#                      and coverage-greedy: map and completed-surface F@5mm of the whole true
+#                      surface after 10-80 strokes, the prediction's calibration and cost
+#                      (test/benchmarks/bench_explore.py: --objects, --modes, --explorers,
+#                      --seeds, --strokes, --jobs, --keep DIR, --quick)
 #   startup            first start: build_map, occupancy_node and stereo_node with an empty
 #                      numba cache and after compile_kernels (what bootstrap.sh runs)
 #                      (test/benchmarks/bench_startup.py: --fresh-clone)
 #   latency            live-view latency: poses published at 240 Hz x 4 in real time ->
 #                      the cell in occupancy/updates, p50/p95 (test/benchmarks/
-#                      bench_live_latency.py: --duration S, --seed N)
+#                      bench_live_latency.py: --duration S, --seed N, --view, --exploration)
 #   fuzz               the hypothesis properties of test/test_fuzz.py (Liberty parser, PoseStamped
 #                      and PointCloud2 decoders, NPZ and PLY readers, parameter checks) on a
 #                      million random inputs (test/benchmarks/fuzz.py: --inputs N, --jobs J,
@@ -92,8 +97,9 @@ declare -A BENCHMARKS=(
   [fuzz]=fuzz.py
   [soak]=soak.py
   [shape]=bench_shape.py
+  [explore]=bench_explore.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture texture-sessions quality validation fingers shape startup latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture texture-sessions quality validation fingers shape explore startup latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then

@@ -9,7 +9,9 @@ keeps up (the replay itself is over in well under a second), saves the map (with
 colours of its occupied cells), renders the pictures with the rig's config/stereo.yaml
 (so the stereo points, the textured map and their registration are among them), extracts
 the map's shape (surface mesh, superquadric parts, the graspable part and its grasps:
-cat_moving_shape.png, the paper's Fig. 1) and prints the metrics. Everything lands in
+cat_moving_shape.png, the paper's Fig. 1), predicts the surface where no finger went with
+its uncertainty and where to touch next (cat_moving_uncertainty.png) and prints the
+metrics. Everything lands in
 output/demo/; the last line names the textured map's
 picture. --view also starts live_view (the page at http://127.0.0.1:8080/, Foxglove at
 ws://127.0.0.1:8765) and keeps the graph up after the save until Ctrl-C.
@@ -38,7 +40,8 @@ def main(argv=None) -> int:
         print(f'demo: {BAG} is missing; regenerate the bundled bags with '
               'bash launch_scripts/make_bags.sh', file=sys.stderr)
         return 2
-    for name in (*STEREO_PICTURES, 'cat_moving_shape.png'):  # only this run's are shown
+    for name in (*STEREO_PICTURES, 'cat_moving_shape.png', 'cat_moving_uncertainty.png'):
+        # only this run's are shown
         (OUTPUT / name).unlink(missing_ok=True)
     code = replay(BAG, WORKSPACE / 'config' / 'mapping.yaml', OUTPUT, 'cat_moving',
                   ['--fast'], view_args=args)
@@ -47,6 +50,10 @@ def main(argv=None) -> int:
     shape = OUTPUT / 'cat_moving_shape.png'
     if shape.exists():
         print(f'[demo] surface mesh, superquadric parts, graspable part and grasps: {shape}',
+              flush=True)
+    guidance = OUTPUT / 'cat_moving_uncertainty.png'
+    if guidance.exists():
+        print(f'[demo] predicted surface, its uncertainty and where to touch next: {guidance}',
               flush=True)
     textured = OUTPUT / 'textured_map.png'
     if textured.exists():

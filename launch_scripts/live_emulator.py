@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     from sensor_msgs.msg import PointCloud2
     with ProcessGroup() as group, TopicWatch('registration/points', PointCloud2) as watch:
         mapping_graph(group, str(WORKSPACE / 'config' / 'mapping.yaml'), str(args.output),
-                      'live', autosave=args.autosave, shape=True)
+                      'live', autosave=args.autosave, shape=True, exploration=True)
         # The map's reader in place before the first pose: the occupancy node can take
         # seconds to start (its kernels), and what registration sent before was lost.
         if not watch.wait_reader('occupancy_node', timeout=60.0):

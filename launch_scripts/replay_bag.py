@@ -9,7 +9,8 @@ bag holds a stereo pair: it publishes stereo/points and occupancy/textured), rep
 with bag_replay over real DDS,
 waits for the last registered points to be integrated, calls occupancy/save, stops the
 nodes, then renders the map (render_map), extracts its shape (extract_shape: surface mesh,
-superquadric parts and grasps, NAME_shape.png) and, when the bag has a ground-truth sidecar
+superquadric parts and grasps, NAME_shape.png), predicts its surface and where to touch next
+(predict_surface: NAME_uncertainty.png) and, when the bag has a ground-truth sidecar
 (BAG.truth.npz, written by simulate_session), prints its metrics (map_metrics). The
 config defaults to config/mapping.yaml (tracked object) when the bag has an object sensor
 topic, else config/mapping_static.yaml. Only the graph's inputs are replayed (driver poses,
@@ -101,7 +102,8 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             TopicWatch('occupancy/textured', PointCloud2) as textured:
         mapping_graph(group, str(config), str(output), name,
                       stereo_config=str(stereo) if stereo else None, sim_time=sim_time,
-                      shape=bool(getattr(view_args, 'view', False)))
+                      shape=bool(getattr(view_args, 'view', False)),
+                      exploration=bool(getattr(view_args, 'view', False)))
         view = start_view(group, view_args)
         # The registration node's first points must find the occupancy node (and the
         # view) listening.
@@ -154,6 +156,11 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             up = 'z' if topics is None or OBJECT_POSE_TOPIC in topics else '-z'
             if group.run('shape', ['extract_shape', str(npz), '--output-dir', str(output), '--quiet',
                                    f'--up={up}', *configs]) != 0:
+                return 1
+            # what the map does not know yet, and where to touch next
+            mode = 'tracked' if up == 'z' else 'static'
+            if group.run('predict', ['predict_surface', str(npz), '--output-dir', str(output),
+                                     '--quiet', f'--up={up}', f'--mode={mode}', *configs]) != 0:
                 return 1
         if truth.exists():
             if group.run('metrics', ['map_metrics', str(npz), '--truth', str(truth), '--bag',

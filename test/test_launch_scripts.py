@@ -197,8 +197,12 @@ def test_replaying_a_bundled_bag_makes_the_map_pictures_and_metrics(tmp_path):
     assert 'mapping_static.yaml' in result.stdout  # no object sensor in the bag
     for name in ('cat_static.npz', 'cat_static.ply', 'figure.png', 'map_above_0.8.png',
                  'cat_static.metrics.json', 'cat_static_shape.png', 'cat_static_parts.yaml',
-                 'cat_static_surface.stl'):
+                 'cat_static_surface.stl', 'cat_static_uncertainty.png',
+                 'cat_static_predicted.ply', 'cat_static_next_touch.yaml'):
         assert (tmp_path / name).stat().st_size > 0, name
+    import yaml
+    guidance = yaml.safe_load((tmp_path / 'cat_static_next_touch.yaml').read_text())
+    assert guidance['support'] is not None and guidance['suggestions']   # static: on the table
     metrics = json.loads((tmp_path / 'cat_static.metrics.json').read_text())
     assert metrics['frame'] == 'tracker'  # static session: the map is in the tracker frame
     assert metrics['points']['points'] == 3 * 120 * 15  # every fingertip sample registered

@@ -19,6 +19,7 @@ import pytest
 from conftest import WORKSPACE
 from inhand_mapping.mapping_config import OCCUPANCY_PARAMETERS, REGISTRATION_PARAMETERS
 from inhand_shape.shape_extraction import SHAPE_PARAMETERS
+from inhand_shape.touch_guidance import EXPLORATION_NODE_PARAMETERS
 from inhand_stereo.stereo_config import STEREO_PARAMETERS
 from inhand_view.view_config import VIEW_PARAMETERS
 from polhemus_liberty.driver_config import DRIVER_PARAMETERS
@@ -230,8 +231,9 @@ def test_launch_scripts_the_docs_name_exist_and_answer_help():
 
 @pytest.mark.parametrize('specs', [DRIVER_PARAMETERS, REGISTRATION_PARAMETERS,
                                    OCCUPANCY_PARAMETERS, STEREO_PARAMETERS, VIEW_PARAMETERS,
-                                   SHAPE_PARAMETERS],
-                         ids=['driver', 'registration', 'occupancy', 'stereo', 'view', 'shape'])
+                                   SHAPE_PARAMETERS, EXPLORATION_NODE_PARAMETERS],
+                         ids=['driver', 'registration', 'occupancy', 'stereo', 'view', 'shape',
+                              'exploration'])
 def test_every_node_parameter_is_documented_with_its_allowed_values(specs):
     rows: dict[str, list[str]] = {}
     for match in re.finditer(r'^\| `(\w+)` \|.*$', ALL_TEXT, re.M):

@@ -187,16 +187,21 @@ def test_extract_shape_refuses_a_bad_parameter_with_its_name_and_range(bottle_ma
     assert not list(tmp_path.iterdir())
 
 
-def test_shape_node_answers_shape_extract_and_publishes_the_parts_and_surface(bottle_map):
-    """The graph's service: occupancy_node resumed from the bundled bag's map publishes
-    occupancy/occupied; the live page's "Extract shape" calls shape/extract on shape_node,
-    which answers with the summary and latches the markers; the page then holds the parts,
-    and a viewer that comes later gets the markers."""
+def test_shape_and_exploration_nodes_publish_what_the_page_and_a_late_viewer_show(bottle_map):
+    """The graph's applications of the map: occupancy_node resumed from the bundled bag's map
+    publishes occupancy/occupied; the live page's "Extract shape" calls shape/extract on
+    shape_node, which answers with the summary and latches the markers; exploration_node,
+    told the graph's static mode by registration_node, latches the predicted surface and the
+    next touches (none near the support). The page then holds the parts, the heat map and the
+    touches, and a viewer that comes later gets every marker."""
     import json
 
+    from geometry_msgs.msg import PoseStamped
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
     from visualization_msgs.msg import Marker, MarkerArray
 
+    from inhand_common.point_cloud import from_point_cloud2
     from ros_helpers import BackgroundNode, running
     from test_live_view import free_port, http, live_view_args, wait_for_page
     config = str(WORKSPACE / 'config' / 'mapping_static.yaml')
@@ -204,6 +209,8 @@ def test_shape_node_answers_shape_extract_and_publishes_the_parts_and_surface(bo
     with running(['occupancy_node', '--ros-args', '--params-file', config, '-p',
                   f'initial_map:={bottle_map}', '-p', f'output_dir:={bottle_map.parent / "occ"}']), \
             running(['shape_node', '--ros-args', '-p', 'friction:=0.8']), \
+            running(['registration_node', '--ros-args', '--params-file', config]), \
+            running(['exploration_node', '--ros-args', '-p', 'suggestions:=3']), \
             running(live_view_args(http_port, free_port())) as view:
         wait_for_page(page, view)
         deadline = time.monotonic() + 60
@@ -221,6 +228,13 @@ def test_shape_node_answers_shape_extract_and_publishes_the_parts_and_surface(bo
         names = {item['name']: item for item in state['shape']['items']}
         assert names['part 0']['kind'] == 'triangles' and len(names['part 0']['points']) % 9 == 0
         assert names['grasps']['kind'] == 'lines'
+        while not (state.get('exploration') or {}).get('touches'):
+            assert time.monotonic() < deadline, view.output()
+            time.sleep(0.2)
+            state = json.loads(http(page + 'state.json')[1])
+        heat = state['exploration']
+        assert len(heat['points']) == 3 * len(heat['std_um']) > 300
+        assert len(heat['touches']) == 3 and all(len(arrow) == 6 for arrow in heat['touches'])
         viewer = BackgroundNode('test_shape_viewer')
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -229,10 +243,14 @@ def test_shape_node_answers_shape_extract_and_publishes_the_parts_and_surface(bo
                                         lambda m: got.setdefault('parts', m), latched)
         viewer.node.create_subscription(Marker, 'shape/surface',
                                         lambda m: got.setdefault('surface', m), latched)
+        for topic, kind in (('exploration/uncertainty', PointCloud2), ('exploration/surface', Marker),
+                            ('exploration/next_touch', PoseStamped),
+                            ('exploration/next_touches', MarkerArray)):
+            viewer.node.create_subscription(kind, topic, lambda m, t=topic: got.__setitem__(t, m), latched)
         viewer.start()
         try:
             deadline = time.monotonic() + 20
-            while len(got) < 2:
+            while len(got) < 6:
                 assert time.monotonic() < deadline, f'got {list(got)}'
                 time.sleep(0.1)
         finally:
@@ -245,3 +263,18 @@ def test_shape_node_answers_shape_extract_and_publishes_the_parts_and_surface(bo
     grasps = [m for m in markers if m.ns == 'grasps']
     assert grasps and grasps[0].type == Marker.LINE_LIST and len(grasps[0].points) % 2 == 0
     assert got['surface'].type == Marker.TRIANGLE_LIST and len(got['surface'].points) > 300
+    cloud = from_point_cloud2(got['exploration/uncertainty'])
+    assert len(cloud) > 100 and np.all(cloud['intensity'] >= 0) and cloud['intensity'].max() < 0.05
+    predicted = got['exploration/surface']
+    assert predicted.type == Marker.TRIANGLE_LIST and len(predicted.colors) == len(predicted.points) > 300
+    arrows = [m for m in got['exploration/next_touches'].markers
+              if m.action == Marker.ADD and m.type == Marker.ARROW]
+    assert len(arrows) == 3
+    best = got['exploration/next_touch']
+    assert best.header.frame_id == predicted.header.frame_id == 'object'
+    # static mode (from registration_node): the bottle stands on the table, tracker z down;
+    # the best touch is not within 1 cm of its lowest cell
+    from inhand_tools.map_cells import load_map
+    cells = load_map(bottle_map)
+    lowest = cells.centres[cells.probabilities >= 0.8, 2].max()
+    assert best.pose.position.z < lowest - 0.01 + 1e-6

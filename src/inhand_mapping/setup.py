@@ -22,6 +22,7 @@ setup(
             'registration_node = inhand_mapping.nodes.registration_node:main',
             'occupancy_node = inhand_mapping.nodes.occupancy_node:main',
             'shape_node = inhand_mapping.nodes.shape_node:main',
+            'exploration_node = inhand_mapping.nodes.exploration_node:main',
         ],
     },
 )

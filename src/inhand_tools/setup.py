@@ -30,6 +30,7 @@ setup(
             'map_metrics = inhand_tools.commands.map_metrics:main',
             'render_map = inhand_tools.commands.render_map:main',
             'extract_shape = inhand_tools.commands.extract_shape:main',
+            'predict_surface = inhand_tools.commands.predict_surface:main',
         ],
     },
 )

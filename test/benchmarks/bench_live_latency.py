@@ -1,7 +1,7 @@
 """Latency a user feels in a live view: from a fingertip pose published to its cell changing
 in what the viewer receives, at the device's rate (240 Hz x 4 stations), in real time.
 
-    .venv/bin/python test/benchmarks/bench_live_latency.py [--duration S] [--seed N] [--view]
+    .venv/bin/python test/benchmarks/bench_live_latency.py [--duration S] [--seed N] [--view] [--exploration]
 
 Simulates a moving cat session (240 Hz, 4 stations, ``--duration`` s) and publishes its poses
 from this process in real time, as the driver would, to registration_node and
@@ -161,6 +161,9 @@ def main() -> int:
     parser.add_argument('--seed', type=int, default=3)
     parser.add_argument('--view', action='store_true',
                         help='measure at a Foxglove client of live_view')
+    parser.add_argument('--exploration', action='store_true',
+                        help='with exploration_node in the graph (the predicted surface and the '
+                        'next touches once a second): the map\'s latency should not change')
     args = parser.parse_args()
     os.environ['ROS_DOMAIN_ID'] = str(random.randint(100, 200))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -178,7 +181,7 @@ def main() -> int:
               f'{len(points.registered_times):,} registered fingertip positions', flush=True)
         log = open(Path(folder) / 'graph.log', 'w')
         with BagSource(bag) as source, ProcessGroup(stream=log) as group:
-            mapping_graph(group, config, folder, 'latency')
+            mapping_graph(group, config, folder, 'latency', exploration=args.exploration)
             view = None
             if args.view:
                 port = random.randint(20000, 40000)

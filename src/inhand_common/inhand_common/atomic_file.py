@@ -15,11 +15,11 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import BinaryIO
 
-__all__ = ['FileSet', 'atomic_file_set', 'atomic_write']
+__all__ = ['FileSet', 'atomic_file_set', 'atomic_write', 'write_file_set']
 
 
 def _umask() -> int:
@@ -120,3 +120,19 @@ def atomic_file_set() -> Iterator[FileSet]:
         files.discard()
         raise
     files.commit()
+
+
+def write_file_set(contents: Mapping[Path, bytes | None]) -> list[Path]:
+    """Replace the files of ``contents`` together (:func:`atomic_file_set`): each path gets
+    its bytes, a path given None is removed (this version of the set has no such member).
+    Returns the paths written, in order."""
+    written = []
+    with atomic_file_set() as files:
+        for path, data in contents.items():
+            if data is None:
+                files.remove(path)
+                continue
+            with files.write(path) as stream:
+                stream.write(data)
+            written.append(Path(path))
+    return written

@@ -19,7 +19,7 @@ import yaml
 from numpy.typing import ArrayLike
 
 from inhand_common.array_types import Floats
-from inhand_common.atomic_file import atomic_file_set
+from inhand_common.atomic_file import write_file_set
 from inhand_common.parameters import ParamSpec
 from inhand_shape.grasps import Grasp, antipodal_grasps, graspable_scores
 from inhand_shape.shape_parts import MAX_PARTS, Decomposition, decompose
@@ -125,32 +125,30 @@ def shape_file_names(output_dir: str | Path, name: str) -> dict[str, Path]:
     return files
 
 
+def yaml_document(comment: str, content: dict[str, Any]) -> bytes:
+    """A YAML file: a ``# comment`` line, then ``content`` in its order."""
+    text = io.StringIO()
+    text.write(f'# {comment}\n')
+    yaml.safe_dump(content, text, sort_keys=False, default_flow_style=None)
+    return text.getvalue().encode()
+
+
+def mesh_bytes(mesh: Any, file_type: str) -> bytes:
+    """A trimesh.Trimesh as a file of ``file_type`` (ply, obj, stl)."""
+    data = mesh.export(file_type=file_type)
+    return data if isinstance(data, bytes) else str(data).encode()
+
+
 def write_shape_files(result: ShapeResult, output_dir: str | Path, name: str,
                       picture: bytes | None = None) -> list[Path]:
     """Write the surface (PLY, OBJ, STL; none when there is no surface), the parts YAML and
     the ``picture`` (PNG bytes) if given, all or none; the paths written."""
     files = shape_file_names(output_dir, name)
-    Path(output_dir).mkdir(parents=True, exist_ok=True)
-    written = []
-    with atomic_file_set() as fileset:
-        if len(result.mesh.faces):
-            mesh = result.mesh.trimesh()
-            for fmt in MESH_FORMATS:
-                data = mesh.export(file_type=fmt)
-                with fileset.write(files[fmt]) as stream:
-                    stream.write(data if isinstance(data, bytes) else data.encode())
-                written.append(files[fmt])
-        else:
-            for fmt in MESH_FORMATS:
-                fileset.remove(files[fmt])
-        text = io.StringIO()
-        text.write(f'# Shape of the map (inhand_shape): {result.summary()}\n')
-        yaml.safe_dump(result.as_dict(), text, sort_keys=False, default_flow_style=None)
-        with fileset.write(files['parts']) as stream:
-            stream.write(text.getvalue().encode())
-        written.append(files['parts'])
-        if picture is not None:
-            with fileset.write(files['picture']) as stream:
-                stream.write(picture)
-            written.append(files['picture'])
-    return written
+    mesh = result.mesh.trimesh() if len(result.mesh.faces) else None
+    contents: dict[Path, bytes | None] = {
+        files[fmt]: None if mesh is None else mesh_bytes(mesh, fmt) for fmt in MESH_FORMATS}
+    contents[files['parts']] = yaml_document(f'Shape of the map (inhand_shape): {result.summary()}',
+                                             result.as_dict())
+    if picture is not None:
+        contents[files['picture']] = picture
+    return write_file_set(contents)

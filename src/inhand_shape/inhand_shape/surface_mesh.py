@@ -8,9 +8,11 @@ is the one surface the cells sample, and nothing where they are silent. So:
 1. **Normals**: the smallest principal axis of the cells within 2.5 cells of each cell.
 2. **Orientation**: the sign is carried along the minimum spanning tree of the cells'
    neighbour graph, weighted by how much neighbouring normals disagree (Hoppe et al. 1992):
-   each tree starts at the cell farthest from its component's centre, pointing away from
-   it, and a cell takes its parent's side. Depth by depth, so it is one numpy step per
-   level of the tree, not per cell.
+   each tree starts at the cell farthest from its component's centre and a cell takes its
+   parent's side. Depth by depth, so it is one numpy step per level of the tree, not per
+   cell. Then each component as a whole is turned to point away from its centre where most
+   of its cells do (area of a closed surface faces outward more than inward; the farthest
+   cell alone is a poor judge: the tip of a tail or a leg has a sideways normal).
 3. **Signed distance** (Hoppe's tangent planes): at each lattice point near the cells, the
    Gaussian-weighted mean of ``n . (x - p)`` over the nearest cells. The field exists only
    within :data:`REACH` cells of a cell.
@@ -39,7 +41,8 @@ from scipy.spatial import cKDTree  # type: ignore[import-untyped]
 from inhand_common.array_types import Floats, Points
 from inhand_common.cell_lattice import Lattice, cell_indices
 
-__all__ = ['NORMAL_RADIUS', 'REACH', 'SurfaceMesh', 'cell_normals', 'surface_mesh']
+__all__ = ['NORMAL_RADIUS', 'REACH', 'SurfaceMesh', 'cell_normals', 'oriented_normals',
+           'surface_mesh', 'tangent_plane_distance']
 
 NORMAL_RADIUS = 2.5    # cells: the neighbourhood of a cell's normal
 REACH = 1.5            # cells: how far from a cell the surface may go
@@ -105,12 +108,11 @@ def _orient(points: Points, normals: Floats, rows: NDArray[np.intp], cols: NDArr
     sign = np.ones(n)
     depth = np.full(n, -1)
     parent = np.full(n, -1)
+    centres = np.stack([np.bincount(label, points[:, k]) for k in range(3)], axis=1) \
+        / np.bincount(label)[:, None]
     for component in range(count):
         members = np.flatnonzero(label == component)
-        centre = points[members].mean(axis=0)
-        root = members[np.argmax(np.linalg.norm(points[members] - centre, axis=1))]
-        if normals[root] @ (points[root] - centre) < 0:
-            sign[root] = -1.0
+        root = members[np.argmax(np.linalg.norm(points[members] - centres[component], axis=1))]
         order, predecessors = breadth_first_order(tree, root, directed=False)
         parent[order[1:]] = predecessors[order[1:]]
         depth[root] = 0
@@ -124,7 +126,32 @@ def _orient(points: Points, normals: Floats, rows: NDArray[np.intp], cols: NDArr
         at = np.flatnonzero(depth == level)
         same = np.einsum('ij,ij->i', normals[at], normals[parent[at]]) >= 0
         sign[at] = sign[parent[at]] * np.where(same, 1.0, -1.0)
-    return normals * sign[:, None]
+    outward = np.einsum('ij,ij->i', normals * sign[:, None], points - centres[label]) > 0
+    share = np.bincount(label, outward) / np.bincount(label)
+    return normals * (sign * np.where(share[label] < 0.5, -1.0, 1.0))[:, None]
+
+
+def oriented_normals(points: Points, resolution: float) -> Floats:
+    """Consistently oriented unit normals (N, 3) of the cells at ``points`` (steps 1 and 2 of
+    the module doc)."""
+    normals, (rows, cols) = cell_normals(points, resolution)
+    return _orient(points, normals, rows, cols)
+
+
+def tangent_plane_distance(cells: Points, normals: Floats, where: Points, resolution: float,
+                           sheet: NDArray[np.bool_] | None = None) -> Floats:
+    """Signed distance at ``where`` (M, 3) from the tangent planes of the nearest cells
+    (step 3 of the module doc): the Gaussian-weighted mean of ``n . (x - p)`` over the
+    :data:`NEIGHBOURS` nearest cells, positive on the side the normals point to. A cell of a
+    ``sheet`` (outside on both sides) counts as a slab half a cell thick: ``|n . (x - p)| -
+    resolution / 2``."""
+    distance, nearest = cKDTree(cells).query(where, k=min(NEIGHBOURS, len(cells)))
+    distance, nearest = distance.reshape(len(where), -1), nearest.reshape(len(where), -1)
+    weight = np.exp(-(distance / resolution) ** 2)
+    planes = np.einsum('ikj,ikj->ik', normals[nearest], where[:, None, :] - cells[nearest])
+    if sheet is not None:
+        planes = np.where(sheet[nearest], np.abs(planes) - resolution / 2, planes)
+    return np.asarray((weight * planes).sum(axis=1) / np.maximum(weight.sum(axis=1), 1e-300))
 
 
 def _without_specks(vertices: Points, faces: Faces) -> tuple[Points, Faces]:
@@ -169,8 +196,7 @@ def surface_mesh(points: ArrayLike, resolution: float, origin: ArrayLike = (0.0,
     cells = np.asarray(points, dtype=float).reshape(-1, 3)
     if len(cells) < 4:
         return SurfaceMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0, 0.0)
-    normals, (rows, cols) = cell_normals(cells, resolution)
-    normals = _orient(cells, normals, rows, cols)
+    normals = oriented_normals(cells, resolution)
     # the lattice of cell centres around the cells, in cell units
     x, y, z = (float(v) for v in np.ravel(origin))
     index = cell_indices(cells, Lattice(resolution, (x, y, z)))
@@ -182,12 +208,8 @@ def surface_mesh(points: ArrayLike, resolution: float, origin: ArrayLike = (0.0,
     near = ndimage.distance_transform_edt(~occupied) <= REACH
     lattice = np.argwhere(near)
     where = (lattice + low + 0.5) * resolution + np.asarray(origin, dtype=float)
-    distance, nearest = cKDTree(cells).query(where, k=min(NEIGHBOURS, len(cells)))
-    distance, nearest = distance.reshape(len(where), -1), nearest.reshape(len(where), -1)
-    weight = np.exp(-(distance / resolution) ** 2)
-    planes = np.einsum('ikj,ikj->ik', normals[nearest], where[:, None, :] - cells[nearest])
     field = np.full(shape, np.nan)
-    field[tuple(lattice.T)] = (weight * planes).sum(axis=1) / weight.sum(axis=1)
+    field[tuple(lattice.T)] = tangent_plane_distance(cells, normals, where, resolution)
     # only cubes whose eight corners all have a value
     known = ~np.isnan(field)
     # scikit-image looks the mask up at a cube's highest corner

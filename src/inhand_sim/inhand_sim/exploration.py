@@ -58,6 +58,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from inhand_common.rotations import quaternion_conjugate, rotate_vectors
+from inhand_sim.guidance import EXPLORERS, StrokeGuide
 from inhand_sim.objects import HeldRegion, SolidObject
 
 __all__ = [
@@ -150,6 +151,9 @@ class ExplorationSettings:
     focus_centre: tuple | None = None
     focus_radius: float = 0.03                   # m
     focus_weight: float = 4.0
+    # Who chooses where each stroke starts (inhand_sim.guidance): 'random' the person above,
+    # 'guided' the predicted surface's next touches, 'greedy' the farthest from all touched.
+    explorer: str = 'random'
 
 
 # The hand's properties beyond the default hand, and their defaults (sessions written with
@@ -157,7 +161,8 @@ class ExplorationSettings:
 HAND_DEFAULTS = {name: getattr(ExplorationSettings(), name) for name in (
     'stroke_length_range', 'speed_profile', 'liftoff_height_range', 'liftoff_speed_range',
     'liftoff_angle_range', 'hover_probability', 'hover_height_range', 'tremor_amplitude',
-    'tremor_frequency', 'held_scale', 'focus_centre', 'focus_radius', 'focus_weight')}
+    'tremor_frequency', 'held_scale', 'focus_centre', 'focus_radius', 'focus_weight',
+    'explorer')}
 
 
 # What each hand property takes, for command lines: (kind, low, high, unit). Ranges are two
@@ -176,6 +181,7 @@ _HAND_VALUES = {
     'focus_centre': ('point', -0.5, 0.5, 'm'),
     'focus_radius': ('number', 0.005, 0.2, 'm'),
     'focus_weight': ('number', 1.0, 100.0, ''),
+    'explorer': ('choice', EXPLORERS, None, ''),
     'transit_speed': ('number', 0.05, 3.0, 'm/s'),
     'speed_variation': ('number', 0.0, 0.9, ''),
 }
@@ -768,6 +774,8 @@ class _Explorer:
         self.fingers = [self._arriving(name) for name in FINGERS]
         self.events: list = []                       # (finger, kind, t_start, t_end)
         self.started: set[str] = set()               # fingers that chose a stroke already
+        self.guide = None if settings.explorer == 'random' else \
+            StrokeGuide(settings.explorer, obj.table_z if table else None)
 
     def _arriving(self, name: str) -> _Finger:
         """A finger where the hand arrives from: on its side, a few cm from the object,
@@ -806,6 +814,12 @@ class _Explorer:
         st = self.st
         gi = self.grip_index(t)
         pool = self.pool_list[gi]
+        if self.guide is not None:
+            guided = self.guide.choose(pool.starts, ~pool.used,
+                                       [pool.paths[k, :pool.lengths[k] + 1] for k in range(len(pool.starts))])
+            if guided is not None:
+                pool.used[guided] = True
+                return gi, guided
         d = np.linalg.norm(pool.starts - here, axis=1)
         w = np.exp(-d / st.neighbourhood)
         w *= np.exp(st.side_preference * (pool.start_normals @ finger.side))
@@ -975,6 +989,8 @@ class _Explorer:
         finger.segments.append(_Segment(t, t + dt, 'stroke', _slide_along(path, t, t + length / speed),
                                         True, finger.strokes))
         self.events.append((finger.name, 'slide', t, t + dt))
+        if self.guide is not None:
+            self.guide.touched(path, stroke=False)
         return t + dt
 
     def _transit(self, finger: _Finger, t: float, gi: int, index: int, limit: float,
@@ -1036,7 +1052,11 @@ class _Explorer:
             return
         finger.segments.extend(segments)
         self.events.append((finger.name, 'stroke', t, t_end))
-        self.mark_explored(pool.paths[index, :pool.lengths[index] + 1])
+        path = pool.paths[index, :pool.lengths[index] + 1]
+        self.mark_explored(path)
+        if self.guide is not None:
+            reached = int(np.argmin(np.linalg.norm(path - end_point, axis=1)))
+            self.guide.touched(path[:reached + 1], stroke=True)
         up, height = self.lifted(end_normal, end_direction)
         finger.t, finger.pos, finger.normal = t_end, end_point + up * height, end_normal
         finger.contact, finger.lift = end_point, (up, height)

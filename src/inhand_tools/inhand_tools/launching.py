@@ -188,15 +188,16 @@ def call_trigger(service: str, timeout: float = 30.0) -> tuple[bool, str]:
 def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: str,
                   namespace: str | None = None, stereo_config: str | None = None,
                   sim_time: bool = False, autosave: float = 0.0, env: dict | None = None,
-                  prefix: Sequence[str] = (), shape: bool = False) -> None:
+                  prefix: Sequence[str] = (), shape: bool = False, exploration: bool = False) -> None:
     """Start ``registration_node`` and ``occupancy_node`` with the parameters of ``config``
     (a file with both nodes' sections), saving maps to ``output_dir/map_name``; with
     ``stereo_config`` (the rig's file, e.g. config/stereo.yaml) also ``stereo_node``, which
     takes its session settings from ``config`` and the rig's from ``stereo_config``.
     ``sim_time``: the nodes run with ``use_sim_time`` (a replay publishes ``/clock``);
     ``autosave``: the occupancy node saves a changed map every so many seconds; ``shape``:
-    also ``shape_node`` (the ``shape/extract`` service); ``env`` and ``prefix`` as in
-    ProcessGroup.start."""
+    also ``shape_node`` (the ``shape/extract`` service); ``exploration``: also
+    ``exploration_node`` (the predicted surface and next touches, with the ``exploration_node``
+    section of ``config``); ``env`` and ``prefix`` as in ProcessGroup.start."""
     ros_args = _ros_arguments(config, namespace, sim_time)
     group.start('registration', ['registration_node', *ros_args], env, prefix)
     start_occupancy(group, config, output_dir, map_name, namespace=namespace,
@@ -206,6 +207,8 @@ def mapping_graph(group: ProcessGroup, config: str, output_dir: str, map_name: s
                     env, prefix)
     if shape:
         group.start('shape', ['shape_node', *ros_args], env, prefix)
+    if exploration:
+        group.start('exploration', ['exploration_node', *ros_args], env, prefix)
 
 
 def start_occupancy(group: ProcessGroup, config: str, output_dir: str, map_name: str, *,

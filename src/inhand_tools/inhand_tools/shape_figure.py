@@ -16,7 +16,7 @@ from inhand_tools.drawing import OBLIQUE, Camera, View
 from inhand_tools.map_cells import MapCells
 from inhand_tools.map_figures import default_up
 
-__all__ = ['PART_COLOURS', 'map_up', 'shape_figure']
+__all__ = ['PART_COLOURS', 'cells_panel', 'map_up', 'shaded_mesh', 'shape_figure']
 
 # BGR: the graspable part is drawn orange, the others in cool colours
 GRASPABLE_COLOUR = (40, 130, 245)
@@ -26,10 +26,11 @@ CELL_GREY = (215, 215, 215)
 PANEL = 520
 
 
-def _shaded_mesh(image: np.ndarray, camera: Camera, vertices: np.ndarray, faces: np.ndarray,
-                 colour: tuple[int, int, int], factor: int) -> None:
+def shaded_mesh(image: np.ndarray, camera: Camera, vertices: np.ndarray, faces: np.ndarray,
+                colour, factor: int) -> None:
     """Triangles drawn into ``image`` (``factor`` times the camera's size), back to front,
-    lit by the pictures' light (both sides lit alike: open meshes show their backs)."""
+    lit by the pictures' light (both sides lit alike: open meshes show their backs);
+    ``colour``: one BGR for all, or one per triangle (F, 3)."""
     if len(faces) == 0:
         return
     pixels, depth = camera.project(vertices, factor)
@@ -37,15 +38,15 @@ def _shaded_mesh(image: np.ndarray, camera: Camera, vertices: np.ndarray, faces:
     normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     light = np.abs(normals @ camera.light_in_data())
-    shade = (0.35 + 0.65 * light)[:, None] * np.asarray(colour, dtype=float)
+    shade = (0.35 + 0.65 * light)[:, None] * np.asarray(colour, dtype=float).reshape(-1, 3)
     order = np.argsort(depth[faces].mean(axis=1))
     corners = np.round(pixels[faces] * 4).astype(np.int32)   # 2 fractional bits
     for k in order:
         cv2.fillPoly(image, [corners[k]], tuple(int(c) for c in shade[k]), cv2.LINE_AA, shift=2)
 
 
-def _panel(camera: Camera, cells: MapCells, occupied: np.ndarray, draw, title: str,
-           subtitle: str) -> np.ndarray:
+def cells_panel(camera: Camera, cells: MapCells, occupied: np.ndarray, draw, title: str,
+                subtitle: str) -> np.ndarray:
     """The occupied cells in grey, then ``draw(image, factor)`` on top, annotated."""
     base = drawing.render_cells(camera, cells.centres[occupied], cells.lattice.resolution,
                                 np.array(CELL_GREY), edges=False)
@@ -76,7 +77,7 @@ def shape_figure(cells: MapCells, result: ShapeResult, title: str, threshold: fl
         drawing.render_cells(camera, cells.centres[occupied], cells.lattice.resolution, colours),
         camera, 'probabilistic map', f'{int(occupied.sum())} cells >= {threshold:g}')
     mesh = result.mesh
-    mesh_panel = _panel(camera, cells, occupied, lambda image, f: _shaded_mesh(
+    mesh_panel = cells_panel(camera, cells, occupied, lambda image, f: shaded_mesh(
         image, camera, mesh.vertices, mesh.faces, (190, 170, 140), f), 'surface mesh',
         f'{len(mesh.faces):,} triangles, {mesh.holes} hole(s) left open')
 
@@ -84,7 +85,7 @@ def shape_figure(cells: MapCells, result: ShapeResult, title: str, threshold: fl
         for k, part in enumerate(result.decomposition.parts):
             colour = GRASPABLE_COLOUR if k == result.graspable else PART_COLOURS[k % len(PART_COLOURS)]
             vertices, faces = part.superquadric.mesh(3)
-            _shaded_mesh(image, camera, vertices, faces, colour, factor)
+            shaded_mesh(image, camera, vertices, faces, colour, factor)
         for grasp in result.grasps:
             ends, _ = camera.project(np.stack(grasp.contacts), factor)
             a, b = (tuple(int(v) for v in np.round(p)) for p in ends)
@@ -96,5 +97,5 @@ def shape_figure(cells: MapCells, result: ShapeResult, title: str, threshold: fl
     subtitle = (f'{len(parts)} part(s); graspable (orange): part {result.graspable}; '
                 f'{len(result.grasps)} grasp(s) (green)' if parts else
                 'no part: ' + (result.decomposition.reason or '')[:60])
-    parts_panel = _panel(camera, cells, occupied, draw_parts, 'superquadric parts', subtitle)
+    parts_panel = cells_panel(camera, cells, occupied, draw_parts, 'superquadric parts', subtitle)
     return drawing.titled(drawing.hstack([map_panel, mesh_panel, parts_panel]), title)

@@ -136,6 +136,7 @@ class ViewState:
         self._topics = 0
         self._foxglove: dict[str, Any] = {}
         self._shape: dict[str, Any] | None = None
+        self._exploration: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ map
     def set_map(self, cells: np.ndarray, frame: str = MAP_FRAME) -> None:
@@ -335,6 +336,26 @@ class ViewState:
             # sent with the map, when the page's version is behind (it changes on request)
             self.map_version += 1
 
+    def set_uncertainty(self, points: np.ndarray, std: np.ndarray, frame: str = MAP_FRAME) -> None:
+        """The exploration node's predicted surface (``exploration/uncertainty``): its vertices
+        (N, 3) m and their standard deviations (m), in ``frame``."""
+        with self.lock:
+            touches = (self._exploration or {}).get('touches', [])
+            self._exploration = {'frame': frame, 'points': _units(points), 'touches': touches,
+                                 'std_um': np.rint(np.asarray(std, dtype=np.float64) * 1e6)
+                                 .astype(np.int64).tolist()}
+            self.map_version += 1
+
+    def set_next_touches(self, arrows: Sequence[tuple[np.ndarray, np.ndarray]],
+                         frame: str = MAP_FRAME) -> None:
+        """The exploration node's ranked next touches (``exploration/next_touches``): each an
+        arrow (start, end on the surface) in m, best first, in ``frame``."""
+        with self.lock:
+            current = self._exploration or {'points': [], 'std_um': []}
+            self._exploration = dict(current, frame=frame, touches=[
+                _units(np.stack([start, end])) for start, end in arrows])
+            self.map_version += 1
+
     def set_services(self, available: dict[str, bool]) -> None:
         with self.lock:
             self._services = dict(available)
@@ -374,4 +395,5 @@ class ViewState:
             if since != self.map_version:
                 state['map'] = dict(self._cells, colour=self._cell_colours())
                 state['shape'] = self._shape
+                state['exploration'] = self._exploration
         return state

@@ -4,7 +4,7 @@
                      --static|--moving [--regrasp/--no-regrasp] [--second-object-sensor]
                      --rate 15|30|120|240 --duration SECONDS --seed N [--speed CM_PER_S]
                      [--lifts continuous|between-frames] [--noise-mm 1.0]
-                     [--hand NAME=VALUE ...]
+                     [--hand NAME=VALUE ...] [--explorer random|guided|greedy]
                      [--tip-offset-mm X Y Z ...] [--pad-radius-mm R] [--finger-roll-deg D]
                      --output bags/NAME [--force] [--quiet]
 
@@ -33,6 +33,7 @@ from inhand_common.cli_types import number
 from inhand_common.ground_truth import truth_path
 from inhand_sim.catalogue import object_choices
 from inhand_sim.exploration import ExplorationSettings, parse_hand_setting, speed_range_around
+from inhand_sim.guidance import EXPLORERS
 from inhand_sim.mesh_objects import MESH_SUFFIXES, UP_AXES
 from inhand_sim.session import SessionSettings, simulate, write_session
 
@@ -143,6 +144,10 @@ def make_parser() -> argparse.ArgumentParser:
                         'held_scale=1.5, transit_speed=0.3 (m/s), speed_variation=0.3, '
                         'focus_centre=0.05,0,0 (object frame, m: where the hand starts and comes '
                         'back to most, e.g. a handle), focus_radius=0.03 (m), focus_weight=4')
+    parser.add_argument('--explorer', choices=EXPLORERS, default='random',
+                        help='who chooses where each stroke starts: random (default) the '
+                        'simulated person, guided the predicted surface\'s next touches '
+                        '(predict_surface), greedy the start farthest from all touched so far')
     parser.add_argument('--duration', type=number(above=0.0, at_most=24 * 3600, unit='seconds'),
                         required=True, metavar='SECONDS')
     parser.add_argument('--seed', type=_seed, required=True, metavar='N')
@@ -237,6 +242,8 @@ def main(argv=None) -> int:
         exploration = replace(exploration, speed_range=speed_range_around(args.speed / 100.0))
     if args.hand:
         exploration = replace(exploration, **dict(args.hand))
+    if args.explorer != 'random':
+        exploration = replace(exploration, explorer=args.explorer)
     settings = SessionSettings(
         object_name=args.object, mesh_scale=args.mesh_scale, mesh_up=args.mesh_up,
         exploration=exploration, static=args.static,
@@ -266,7 +273,8 @@ def main(argv=None) -> int:
     print(f'simulate_session: {settings.object_name} ({kind}), {settings.duration:g} s at '
           f'{settings.rate:g} Hz, seed {settings.seed}, noise {settings.noise_mm:g} mm, '
           f'strokes {low:.3g}-{high:.3g} cm/s, {args.lifts} lifts'
-          + ''.join(f', {name}={value}' for name, value in args.hand))
+          + ''.join(f', {name}={value}' for name, value in args.hand)
+          + (f', {args.explorer} explorer' if args.explorer != 'random' else ''))
     print(f'  wrote {bag}/ : {session.message_count:,} messages '
           f'({len(session.stamps_ns):,} frames x {len(session.stations)} stations: '
           f'{", ".join(session.stations)}'

@@ -34,7 +34,6 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -50,6 +49,7 @@ from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
 from inhand_common.ros_transforms import Transform, TransformPublisher
 from inhand_mapping.cloud_layouts import textured_cells, vision_cells
+from inhand_mapping.graph_mode import GraphModeQuery
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 from inhand_mapping.qos import LATCHED_QOS
 from inhand_mapping.registration import Registrar
@@ -109,12 +109,11 @@ class StereoNode(Node):
         # from whichever node publishes registration/object_frame. Until it is known the
         # pairs wait, and after WAIT_WARNING s the node says why and what to do.
         self.object_topic = station_pose_topic(config.object_name)
-        self.mode_source = 'no node publishes registration/object_frame yet'
-        self._mode_query: Any = None
         self._held_since: float | None = None    # monotonic: since when a pair waits
-        if config.mode != FOLLOW_REGISTRATION:
-            self._use_mode(config.mode, 'its mode parameter')
-        self._mode_timer = self.create_timer(MODE_QUERY_PERIOD, self._ask_registration_mode)
+        self._own_mode = 'its mode parameter' if config.mode != FOLLOW_REGISTRATION else None
+        if self._own_mode:
+            self._use_mode(config.mode, self._own_mode)
+        self._graph_mode = GraphModeQuery(self, self._on_graph_mode)
         if config.mode != 'static':
             # from the start: a fast replay sends every pose before the mode is known (the
             # placer keeps them until it is; in static mode it ignores them)
@@ -142,35 +141,7 @@ class StereoNode(Node):
             f'{config.mode}; camera_pose {np.round(config.camera_pose, 4).tolist()}')
 
     # ------------------------------------------------------------------ the graph's mode
-    def _ask_registration_mode(self) -> None:
-        """Ask the node that publishes registration/object_frame for its mode, until one
-        answers."""
-        if self._mode_query is not None:
-            return
-        topic = self.resolve_topic_name('registration/object_frame')
-        publishers = self.get_publishers_info_by_topic(topic)
-        if not publishers:
-            return
-        info = publishers[0]
-        node = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
-        client = self.create_client(GetParameters, f'{node}/get_parameters')
-        if not client.service_is_ready():
-            self.mode_source = f'{node} (publishes {topic}) does not answer yet'
-            self.destroy_client(client)
-            return
-        self._mode_query = client.call_async(GetParameters.Request(names=['mode']))
-        self._mode_query.add_done_callback(
-            lambda future: self._on_registration_mode(node, client, future))
-
-    def _on_registration_mode(self, node: str, client: Any, future: Any) -> None:
-        values = getattr(future.result(), 'values', None)
-        mode = values[0].string_value if values else ''
-        self.destroy_client(client)
-        if mode not in ('static', 'tracked'):
-            self.mode_source = f'{node} has no mode parameter'
-            self._mode_query = None          # ask again (another node may take the topic)
-            return
-        self._mode_timer.cancel()
+    def _on_graph_mode(self, mode: str, node: str) -> None:
         if self.placer.mode is None:
             self._use_mode(mode, f'from {node}')
         elif self.placer.mode != mode:
@@ -179,8 +150,12 @@ class StereoNode(Node):
                 f'but {node} registers in {mode} mode: the images and the touch map will not '
                 f"line up; leave this node's mode unset (follow) so the graph has one mode")
 
+    @property
+    def mode_source(self) -> str:
+        """Where the mode the pairs are placed in came from, or why it is not known yet."""
+        return self._own_mode or self._graph_mode.source
+
     def _use_mode(self, mode: str, source: str) -> None:
-        self.mode_source = source
         with self._state:
             self._decided(self.placer.use(Registrar(mode, self.config.max_gap)))
         self.get_logger().info(f'placing the stereo pairs in {mode} mode ({source})')
@@ -352,7 +327,6 @@ class StereoNode(Node):
             f"{flow['images unpaired']} images never paired")
 
 
-MODE_QUERY_PERIOD = 0.5    # s between looks for the registration node
 WAIT_WARNING = 3.0         # s a pair may wait to be placed before the node says why
 
 

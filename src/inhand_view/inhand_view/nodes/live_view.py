@@ -20,6 +20,9 @@ decoded into the page's state (view_state.py):
 
 * ``shape/parts`` (visualization_msgs/MarkerArray, the shape node's): the superquadric
   parts and the grasps, drawn over the map.
+* ``exploration/uncertainty`` (PointCloud2, the exploration node's predicted surface with
+  its standard deviation) and ``exploration/next_touches`` (MarkerArray of ARROWs): the
+  heat map of what the map does not know and where to touch next.
 
 The page (``http://host:http_port/``, page_server.py) runs in threads of its own. Its reset,
 save and shape buttons, and Foxglove's service calls of ``occupancy/reset``,
@@ -49,6 +52,7 @@ from inhand_common.parameters import ParameterError
 from inhand_common.point_cloud import decode_point_cloud2
 from inhand_common.ros_clock import steady_timer
 from inhand_common.ros_parameters import declare_parameters
+from inhand_common.rotations import rotate_vectors
 from inhand_mapping.cloud_layouts import unpack_registered
 from inhand_tools.message_types import UnknownMessageType, message_class
 from inhand_tools.qos_profiles import matching_qos
@@ -69,6 +73,15 @@ TICK = 0.2          # s: latched messages for new Foxglove subscribers, service 
 # the page's buttons and Foxglove's service calls -> the graph's services
 SERVICES = {'reset': 'occupancy/reset', 'save': 'occupancy/save', 'shape': 'shape/extract'}
 MARKER_KINDS = {Marker.TRIANGLE_LIST: 'triangles', Marker.LINE_LIST: 'lines'}
+
+
+def arrow_ends(marker: Marker) -> tuple[np.ndarray, np.ndarray]:
+    """(tail, tip) m of an ARROW marker given by its pose: from the position along the
+    pose's x axis, scale.x long."""
+    q = marker.pose.orientation
+    tail = np.array([marker.pose.position.x, marker.pose.position.y, marker.pose.position.z])
+    return tail, tail + marker.scale.x * rotate_vectors(np.array([q.x, q.y, q.z, q.w]),
+                                                        np.array([1.0, 0.0, 0.0]))
 
 
 class PortBusy(ParameterError):
@@ -121,6 +134,8 @@ class LiveView(Node):
             ('occupancy/occupied', self._on_occupied),
             ('occupancy/textured', self._on_textured), ('registration/points', self._on_points),
             ('shape/parts', self._on_shape),
+            ('exploration/uncertainty', self._on_uncertainty),
+            ('exploration/next_touches', self._on_next_touches),
             ('transforms', partial(self._on_transform, static=False)),
             ('transforms_static', partial(self._on_transform, static=True)),
             ('diagnostics', self._on_diagnostics))}
@@ -225,6 +240,18 @@ class LiveView(Node):
             [(m.ns, MARKER_KINDS[m.type], np.array([[p.x, p.y, p.z] for p in m.points]).reshape(-1, 3),
               (m.color.r, m.color.g, m.color.b, m.color.a)) for m in drawn],
             drawn[0].header.frame_id if drawn else 'object')
+
+    def _on_uncertainty(self, data: bytes) -> None:
+        cloud = decode_point_cloud2(data)
+        points = cloud.points
+        self.state.set_uncertainty(np.stack([points['x'], points['y'], points['z']], axis=1),
+                                   points['intensity'], cloud.frame_id)
+
+    def _on_next_touches(self, data: bytes) -> None:
+        markers = [m for m in deserialize_message(data, MarkerArray).markers
+                   if m.action == Marker.ADD and m.type == Marker.ARROW]
+        self.state.set_next_touches([arrow_ends(m) for m in sorted(markers, key=lambda m: m.id)],
+                                    markers[0].header.frame_id if markers else 'object')
 
     def _on_points(self, data: bytes) -> None:
         points, times, fingers = unpack_registered(decode_point_cloud2(data).points)

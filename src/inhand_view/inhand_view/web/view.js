@@ -4,7 +4,7 @@
 //
 // URL parameters set the first view: frame=map|tracker,
 // projection=orthographic|perspective, colour=texture|probability, threshold=0..0.95,
-// explored=0|1, parts=0|1, up=auto|+z|-z.
+// explored=0|1, parts=0|1, uncertainty=0|1, up=auto|+z|-z.
 'use strict';
 
 (() => {
@@ -16,6 +16,7 @@
     threshold: Number(params.get('threshold') || '0.6'),
     explored: params.get('explored') !== '0',
     parts: params.get('parts') !== '0',
+    uncertainty: params.get('uncertainty') !== '0',
     up: params.get('up') || 'auto',
     yaw: -0.65, pitch: 0.5, zoom: 1, pan: [0, 0],
     target: [0, 0, 0], radius: 0.08, autoFit: true,
@@ -29,6 +30,7 @@
   let state = null;          // the latest /state.json
   let map = null;            // its decoded map (kept across polls while unchanged)
   let shape = null;          // the shape node's parts and grasps, sent with the map
+  let exploration = null;    // the exploration node's predicted surface and next touches
   let pollFailures = 0;
   let redrawPending = false;
 
@@ -191,6 +193,7 @@
     const cam = camera();
     drawCells(cam);
     drawShape(cam);
+    drawExploration(cam);
     drawFrames(cam);
     drawTrails(cam);
     drawScaleBar(cam);
@@ -278,6 +281,43 @@
         ctx.fillStyle = ctx.strokeStyle; ctx.fill();
       }
     }
+  }
+
+  // The exploration node's predicted surface as a heat map of its standard deviation
+  // (dark blue known, yellow 10 mm or more: a guess) and the next touches as red arrows
+  // onto it, the best one thicker.
+  const VIRIDIS = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
+  function stdRgb(metres) {
+    const x = Math.min(1, Math.max(0, metres / 0.01)) * (VIRIDIS.length - 1);
+    const k = Math.min(VIRIDIS.length - 2, Math.floor(x));
+    return VIRIDIS[k].map((v, i) => Math.round(v + (x - k) * (VIRIDIS[k + 1][i] - v)));
+  }
+
+  function drawExploration(cam) {
+    if (!state || !exploration || !view.uncertainty) return;
+    const pose = mapPose();
+    const unit = state.settings.position_unit;
+    const p = exploration.points;
+    const ratio = window.devicePixelRatio || 1;
+    const dots = [];
+    for (let i = 0; i + 2 < p.length; i += 3) {
+      const s = cam.project(applyPose(pose, [p[i] * unit, p[i + 1] * unit, p[i + 2] * unit]));
+      if (s) dots.push([s[2], s, exploration.std_um[i / 3] * 1e-6]);
+    }
+    dots.sort((a, b) => a[0] - b[0]);                 // far first
+    for (const [, s, std] of dots) {
+      ctx.fillStyle = css(stdRgb(std));
+      ctx.fillRect(s[0] - 1.5 * ratio, s[1] - 1.5 * ratio, 3 * ratio, 3 * ratio);
+    }
+    exploration.touches.forEach((arrow, rank) => {
+      const [a, b] = [0, 3].map((k) => cam.project(applyPose(pose, [arrow[k] * unit,
+        arrow[k + 1] * unit, arrow[k + 2] * unit])));
+      if (!a || !b) return;
+      ctx.strokeStyle = ctx.fillStyle = rank === 0 ? '#ff3030' : 'rgba(255,80,80,0.7)';
+      ctx.lineWidth = (rank === 0 ? 3 : 2) * ratio;
+      ctx.beginPath(); ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.stroke();
+      ctx.beginPath(); ctx.arc(b[0], b[1], (rank === 0 ? 4 : 3) * ratio, 0, 2 * Math.PI); ctx.fill();
+    });
   }
 
   function drawAxes(cam, pose, length, label, labels) {
@@ -459,6 +499,7 @@
       if (next.map) {
         map = decodeMap(next.map, next.settings.position_unit);
         shape = next.shape;
+        exploration = next.exploration;
       }
       state = next;
       pollFailures = 0;
@@ -507,6 +548,8 @@
     $('explored').addEventListener('change', () => { view.explored = $('explored').checked; redraw(); });
     $('parts').checked = view.parts;
     $('parts').addEventListener('change', () => { view.parts = $('parts').checked; redraw(); });
+    $('uncertainty').checked = view.uncertainty;
+    $('uncertainty').addEventListener('change', () => { view.uncertainty = $('uncertainty').checked; redraw(); });
     $('fit').addEventListener('click', () => { view.autoFit = true; redraw(); });
     $('reset').addEventListener('click', () => call('reset'));
     $('save').addEventListener('click', () => call('save'));

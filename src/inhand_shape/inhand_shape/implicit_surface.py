@@ -1,0 +1,463 @@
+"""The completed surface and how sure it is: a sparse Gaussian process implicit surface.
+
+A touch map knows the surface where fingers went and nothing elsewhere. To say what the rest
+probably is, and how unsure that guess is, the surface is the zero level of a function ``f``
+(about the signed distance to the surface, m, negative inside) with a Gaussian process prior
+(Dragiev et al., ICRA 2011; Yi et al., IROS 2016)::
+
+    f(x) = m(x) + g(x),    g ~ GP(0, k),    k = s^2 Matern-3/2(|x - x'| / l)
+
+* **Prior mean** ``m``: the first-order distance to a closed shape around the occupied cells,
+  so that where no finger went the surface falls back to the simplest shape that holds what
+  was touched: the ellipsoid on their principal axes spanning their extent (default), or
+  their robust superquadric fit (superquadric.py; a touched cap gives its whole sphere). Such
+  a shape can reach far past the object: a point farther from every touched cell than
+  :attr:`PredictionSettings.prior_reach` plus its depth inside the shape counts as outside.
+* **Observations**: every occupied cell is on the surface (``f = 0``); the point
+  :data:`OUTSIDE_OFFSET` cells out along its normal is that far outside, the point
+  :data:`INSIDE_OFFSET` in is inside. Normals are surface_mesh.py's, turned towards the free
+  space next to a cell where there is some on one side only; a cell with free space on both
+  sides is a sheet (a thin wall or plate) and gets an outside point on each side. Free
+  cells (visited by a finger, probability at most :data:`FREE_PROBABILITY`, more than
+  :data:`FREE_GAP` cells from an occupied one) that the prior puts inside or within
+  :data:`FREE_REACH` of its surface are outside, by at most their distance to the nearest
+  occupied cell (observed as that distance, with a noise of half of it): what a touch map has
+  that a point cloud has not.
+* **Sparse**: the deterministic training conditional (Seeger et al. 2003; Quinonero-Candela
+  and Rasmussen 2005) on at most :data:`MAX_INDUCING` inducing points (the observations
+  thinned on a grid). Its cost is linear in the observations, and far from every inducing
+  point its variance is the prior's: it never claims to know the surface where nothing was
+  measured.
+
+The mean is evaluated on a grid of :attr:`PredictionSettings.grid_step` around the object.
+Where the map has evidence (within surface_mesh's :data:`~inhand_shape.surface_mesh.REACH` of
+an occupied cell) the map's own surface decides (its tangent-plane distance); elsewhere
+nothing in front of the touched surface is inside (the process may close the surface behind
+what was touched, never bridge a gap the fingers passed over). Its zero level is meshed by
+marching cubes (scikit-image), pieces facing inward (hollows) are dropped, and the standard
+deviation of ``f`` is evaluated at every vertex. Because ``f`` is about a distance (slope 1),
+that standard deviation is in metres: how far the true surface may be from the predicted one.
+The defaults and how well they are calibrated: docs/exploration.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import cho_factor, cho_solve, solve_triangular  # type: ignore[import-untyped]
+from scipy.sparse import coo_matrix  # type: ignore[import-untyped]
+from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
+from scipy.spatial import cKDTree  # type: ignore[import-untyped]
+
+from inhand_common.array_types import Floats, Points, Vector3
+from inhand_common.parameters import ParamSpec, validate
+from inhand_shape.superquadric import Superquadric, fit_superquadric
+from inhand_shape.surface_mesh import REACH, oriented_normals, tangent_plane_distance
+
+__all__ = ['FREE_PROBABILITY', 'PREDICTION_PARAMETERS', 'PredictedSurface', 'PredictionSettings',
+           'SurfacePrior', 'predict_map_surface', 'predict_surface',
+           'thinned']
+
+OUTSIDE_OFFSET = 2.0      # cells: the outside observation of each occupied cell, along its normal
+INSIDE_OFFSET = 1.0       # cells: the inside one (short: a wall may be thin)
+FREE_PROBABILITY = 0.6     # cells at most this likely occupied, and visited, are free space
+FREE_GAP = 1.5           # cells: free cells nearer than this to an occupied one are left out
+SIDE_REACH = 3.0          # cells: the free space that says which side of a cell is outside
+MIN_SIDE_CELLS = 2        # free cells on a side that make it outside
+SIDE_CONE = 0.85          # ... within this cosine of the normal's axis
+FREE_REACH = 0.02         # m: free cells the prior puts farther outside than this say nothing new
+MAX_INDUCING = 400       # inducing points of the sparse process
+MAX_OBSERVATIONS = 6000   # observations used (thinned on a grid beyond)
+PRIOR_MARGIN = 1.0        # cells added to the ellipsoid's half extents
+PRIOR_FIT_CELLS = 300     # cells the prior's superquadric is fitted to (thinned on a grid)
+MAX_GRID_POINTS = 200_000  # prediction grid points (the step grows beyond)
+KERNEL_REACH = 4.0        # length scales: farther inducing points are left out of the mean
+KERNEL_NEIGHBOURS = 32    # ... and all but the nearest of them
+_CHUNK = 20000            # query points per kernel block
+
+
+@dataclass(frozen=True)
+class PredictionSettings:
+    """The process's hyper-parameters and the prediction grid (PREDICTION_PARAMETERS says
+    what each means; the defaults are chosen in docs/exploration.md)."""
+
+    length_scale: float = 0.01      # m
+    signal_std: float = 0.01        # m
+    noise_std: float = 0.5          # cells
+    grid_step: float = 2.0          # cells
+    margin: float = 0.02            # m around the prior shape and the cells
+    prior: str = 'ellipsoid'        # or 'superquadric'
+    prior_reach: float = 0.02       # m: how far past the touched cells the prior may reach
+
+    def __post_init__(self) -> None:
+        # refused as a node refuses a parameter: by name, with the allowed values
+        validate(PREDICTION_PARAMETERS, {f.name: getattr(self, f.name) for f in fields(self)})
+
+
+PREDICTION_PARAMETERS = (
+    ParamSpec('length_scale', PredictionSettings.length_scale, 'Gaussian process length scale '
+              '(m): how far a touch informs the predicted surface', minimum=0.005, maximum=0.2),
+    ParamSpec('signal_std', PredictionSettings.signal_std, 'Prior standard deviation of the '
+              'surface from the prior shape (m): the uncertainty where nothing was touched',
+              minimum=0.001, maximum=0.1),
+    ParamSpec('noise_std', PredictionSettings.noise_std, 'Standard deviation of a contact '
+              'observation, in cells', minimum=0.05, maximum=5.0),
+    ParamSpec('grid_step', PredictionSettings.grid_step, 'Spacing of the prediction grid, in '
+              'cells of the map', minimum=1.0, maximum=8.0),
+    ParamSpec('margin', PredictionSettings.margin, 'Space around the object the prediction '
+              'covers (m)', minimum=0.0, maximum=0.2),
+    ParamSpec('prior_reach', PredictionSettings.prior_reach, 'How far past the touched cells the '
+              'prior shape may reach (m): a point farther from them than this plus its depth '
+              'inside the shape is outside',
+              minimum=0.005, maximum=0.5),
+    ParamSpec('prior', PredictionSettings.prior, 'Shape the surface falls back to where nothing '
+              'was touched: the ellipsoid on the cells\' principal axes, or their robust '
+              'superquadric fit', choices=('ellipsoid', 'superquadric')),
+)
+assert {spec.name for spec in PREDICTION_PARAMETERS} == {f.name for f in fields(PredictionSettings)}
+
+
+@dataclass(frozen=True)
+class SurfacePrior:
+    """The prior mean's shape: a superquadric (an ellipsoid when both exponents are 1)."""
+
+    shape: Superquadric
+
+    @classmethod
+    def ellipsoid_around(cls, points: Points, margin: float) -> SurfacePrior:
+        """The ellipsoid on the points' principal axes spanning their extent (plus ``margin``)."""
+        centre = points.mean(axis=0)
+        _, vectors = np.linalg.eigh(np.cov((points - centre).T) + 1e-12 * np.eye(3))
+        local = (points - centre) @ vectors
+        low, high = local.min(axis=0), local.max(axis=0)
+        return cls(Superquadric((high - low) / 2 + margin, (1.0, 1.0), vectors,
+                                centre + vectors @ ((low + high) / 2)))
+
+    @classmethod
+    def fitted(cls, points: Points, weights: Floats, resolution: float) -> SurfacePrior:
+        """The robust superquadric fit of the points (superquadric.py): it closes a shape
+        from the part of it that was touched (a cap gives its sphere)."""
+        keep = thinned(points, resolution, PRIOR_FIT_CELLS)
+        return cls(fit_superquadric(points[keep], weights[keep], resolution=resolution).superquadric)
+
+    def distance(self, points: Points) -> Floats:
+        """First-order (Taubin) signed distance to the shape, m (negative inside)."""
+        inside = self.shape.inside_outside(points) < 1.0
+        return np.where(inside, -1.0, 1.0) * self.shape.surface_distance(points)
+
+    def bounds(self) -> tuple[Vector3, Vector3]:
+        """Axis-aligned box around the shape."""
+        half = np.abs(self.shape.rotation) @ np.asarray(self.shape.size)
+        return self.shape.centre - half, self.shape.centre + half
+
+
+def _matern_of(distance: Floats, settings: PredictionSettings) -> Floats:
+    """The kernel at the distances ``distance`` (m)."""
+    r = math.sqrt(3.0) * distance / settings.length_scale
+    return np.asarray(settings.signal_std ** 2 * (1.0 + r) * np.exp(-r), dtype=np.float64)
+
+
+def _matern(a: Points, b: Points, settings: PredictionSettings) -> Floats:
+    """The kernel between every point of ``a`` (rows) and of ``b`` (columns)."""
+    squared = (a * a).sum(axis=1)[:, None] + (b * b).sum(axis=1)[None, :] - 2.0 * a @ b.T
+    return _matern_of(np.sqrt(np.maximum(squared, 0.0)), settings)
+
+
+def thinned(points: Points, spacing: float, limit: int) -> NDArray[np.intp]:
+    """Indices of one point per grid cell of ``spacing`` (widened until at most ``limit``)."""
+    while True:
+        keys = np.floor(points / spacing).astype(np.int64)
+        _, first = np.unique(keys, axis=0, return_index=True)
+        if len(first) <= limit:
+            return np.sort(first)
+        spacing *= 1.25
+
+
+@dataclass(frozen=True, eq=False)
+class _Observations:
+    points: Points
+    values: Floats
+    noise: Floats      # standard deviation of each, m
+    normals: Floats    # the occupied cells' oriented normals
+    sheet: NDArray[np.bool_]   # the occupied cells with free space on both sides
+
+
+def _sides(cells: Points, normals: Floats, free: Points, resolution: float
+           ) -> tuple[Floats, NDArray[np.bool_]]:
+    """The normals turned towards the free space near each cell where there is some on one
+    side only, and which cells have free space on both sides (a sheet: a thin wall or plate,
+    outside on both faces). Free space decides where it is known; the normals' orientation
+    from their neighbours (surface_mesh.py) elsewhere."""
+    sheet = np.zeros(len(cells), dtype=bool)
+    if len(free) == 0:
+        return normals, sheet
+    pairs = cKDTree(cells).query_ball_point(free, SIDE_REACH * resolution)
+    counts = np.array([len(p) for p in pairs])
+    cell = np.concatenate([np.asarray(p, dtype=np.intp) for p in pairs]) if counts.sum() else \
+        np.zeros(0, dtype=np.intp)
+    point = np.repeat(np.arange(len(free)), counts)
+    offset = free[point] - cells[cell]
+    along = np.einsum('ij,ij->i', normals[cell], offset)
+    # only free space along the normal says which side is out (beside a convex edge, air
+    # lies below the face's plane)
+    axial = np.abs(along) >= SIDE_CONE * np.linalg.norm(offset, axis=1)
+    front = np.bincount(cell[axial & (along > 0)], minlength=len(cells))
+    back = np.bincount(cell[axial & (along < 0)], minlength=len(cells))
+    sheet = (front >= MIN_SIDE_CELLS) & (back >= MIN_SIDE_CELLS)
+    flip = ~sheet & (back > front)
+    return normals * np.where(flip, -1.0, 1.0)[:, None], sheet
+
+
+def _observations(cells: Points, free: Points, resolution: float, prior: SurfacePrior,
+                  settings: PredictionSettings) -> _Observations:
+    noise = settings.noise_std * resolution
+    if len(free):
+        nearest, _ = cKDTree(cells).query(free)
+        # next to the touched surface a barely touched cell may be surface too
+        keep = nearest > FREE_GAP * resolution
+        free, nearest = free[keep], nearest[keep]
+    normals, sheet = _sides(cells, oriented_normals(cells, resolution), free, resolution)
+    offset = OUTSIDE_OFFSET * resolution
+    inside = INSIDE_OFFSET * resolution
+    solid = ~sheet
+    points = [cells, cells + offset * normals, cells[solid] - inside * normals[solid],
+              cells[sheet] - offset * normals[sheet]]
+    values = [np.zeros(len(cells)), np.full(len(cells), offset), np.full(int(solid.sum()), -inside),
+              np.full(int(sheet.sum()), offset)]
+    sigmas = [np.full(len(v), noise) for v in values]
+    if len(free):
+        # free cells the prior already puts well outside say nothing new
+        near_prior = prior.distance(free) < FREE_REACH
+        bound = np.minimum(nearest[near_prior], FREE_REACH)
+        points.append(free[near_prior])
+        values.append(bound)
+        sigmas.append(np.maximum(noise, bound / 2))
+    obs = _Observations(np.concatenate(points), np.concatenate(values), np.concatenate(sigmas),
+                        normals, sheet)
+    if len(obs.points) > MAX_OBSERVATIONS:
+        keep = thinned(obs.points, resolution, MAX_OBSERVATIONS)
+        obs = _Observations(obs.points[keep], obs.values[keep], obs.noise[keep], normals, sheet)
+    return obs
+
+
+class _PriorMean:
+    """The prior mean m: the prior shape's distance, but a point farther from every touched
+    cell than ``prior_reach`` plus its depth inside the shape counts as outside, by that
+    excess. A shape fitted to part of an object may reach far past it: there its surface is
+    pulled back to within about the reach of what was touched. Deep inside (as deep as it is
+    far from the cells, like the middle of a touched cap's sphere) stays inside."""
+
+    def __init__(self, prior: SurfacePrior, cells: Points, reach: float):
+        self.prior = prior
+        self.tree = cKDTree(cells)
+        self.reach = reach
+
+    def __call__(self, points: Points) -> Floats:
+        nearest, _ = self.tree.query(points)
+        shape = self.prior.distance(points)
+        excess = np.asarray(nearest) - self.reach
+        return np.where(excess > -shape, np.maximum(shape, excess), shape)
+
+
+def _without_cavities(vertices: Points, faces: NDArray[np.int64]
+                      ) -> tuple[Points, NDArray[np.int64]]:
+    """The mesh's connected pieces that enclose a solid (positive signed volume): a piece
+    facing inwards is a hollow inside the object, which touch cannot know of."""
+    if len(faces) == 0:
+        return vertices, faces
+    rows = np.repeat(np.arange(len(faces)), 3)
+    graph = coo_matrix((np.ones(len(rows)), (rows, faces.ravel())),
+                       shape=(len(faces), len(vertices))).tocsr()
+    _, label = connected_components(graph @ graph.T, directed=False)
+    t = vertices[faces]
+    volume = np.einsum('ij,ij->i', t[:, 0], np.cross(t[:, 1], t[:, 2])) / 6.0
+    solid = np.bincount(label, volume) > 0
+    faces = faces[solid[label]]
+    used, faces = np.unique(faces, return_inverse=True)
+    return vertices[used], faces.reshape(-1, 3).astype(np.int64)
+
+
+class _SparseProcess:
+    """The DTC posterior of g given the observations (module doc)."""
+
+    def __init__(self, obs: _Observations, prior: _PriorMean, settings: PredictionSettings,
+                 resolution: float):
+        self.prior = prior
+        self.settings = settings
+        spacing = resolution
+        self.inducing = obs.points[thinned(obs.points, spacing, MAX_INDUCING)]
+        self._tree = cKDTree(self.inducing)
+        m = len(self.inducing)
+        kzz = _matern(self.inducing, self.inducing, settings) + 1e-8 * settings.signal_std ** 2 * np.eye(m)
+        kzx = _matern(self.inducing, obs.points, settings) / obs.noise[None, :]
+        residual = (obs.values - prior(obs.points)) / obs.noise
+        self.kzz = cho_factor(kzz, lower=True)
+        self.sigma = cho_factor(kzz + kzx @ kzx.T, lower=True)
+        self.weights = cho_solve(self.sigma, kzx @ residual)
+
+    def mean(self, points: Points) -> Floats:
+        """The posterior mean of f: the prior mean plus the kernel-weighted inducing points
+        within :data:`KERNEL_REACH` length scales (the kernel is below 1 % of its peak beyond,
+        and at most :data:`KERNEL_NEIGHBOURS` of them, nearest first)."""
+        k = min(KERNEL_NEIGHBOURS, len(self.inducing))
+        distance, index = self._tree.query(points, k=k,
+                                           distance_upper_bound=KERNEL_REACH * self.settings.length_scale)
+        distance, index = distance.reshape(len(points), k), index.reshape(len(points), k)
+        found = index < len(self.inducing)
+        kernel = np.where(found, _matern_of(np.where(found, distance, 0.0), self.settings), 0.0)
+        return np.asarray(self.prior(points) + (kernel * self.weights[np.where(found, index, 0)]).sum(axis=1))
+
+    def std(self, points: Points) -> Floats:
+        out = np.empty(len(points))
+        for start in range(0, len(points), _CHUNK):
+            kz = _matern(self.inducing, points[start:start + _CHUNK], self.settings)
+            explained = solve_triangular(self.kzz[0], kz, lower=True)
+            kept = solve_triangular(self.sigma[0], kz, lower=True)
+            variance = self.settings.signal_std ** 2 - (explained ** 2).sum(axis=0) \
+                + (kept ** 2).sum(axis=0)
+            out[start:start + _CHUNK] = np.sqrt(np.maximum(variance, 0.0))
+        return out
+
+    def covariance(self, a: Points, b: Points) -> Floats:
+        """Posterior covariance of f between ``a`` and ``b`` (rows a, columns b)."""
+        ka = _matern(self.inducing, a, self.settings)
+        kb = _matern(self.inducing, b, self.settings)
+        ea = solve_triangular(self.kzz[0], ka, lower=True)
+        eb = solve_triangular(self.kzz[0], kb, lower=True)
+        sa = solve_triangular(self.sigma[0], ka, lower=True)
+        sb = solve_triangular(self.sigma[0], kb, lower=True)
+        return np.asarray(_matern(a, b, self.settings) - ea.T @ eb + sa.T @ sb)
+
+
+@dataclass(frozen=True, eq=False)
+class PredictedSurface:
+    """The completed surface: mesh ``vertices`` (V, 3) m and outward ``faces`` (F, 3), the
+    standard deviation at each vertex ``vertex_std`` (m), the grid points next to the
+    surface ``band_points`` (B, 3) (their standard deviation: :meth:`band_std`), the ``prior``
+    and the process
+    (for the next touch's gain), and the counts it was made from."""
+
+    vertices: Points
+    faces: NDArray[np.int64]
+    vertex_std: Floats
+    band_points: Points
+    prior: SurfacePrior
+    process: _SparseProcess | None
+    observations: int
+    inducing: int
+    settings: PredictionSettings
+
+    @property
+    def empty(self) -> bool:
+        return len(self.faces) == 0
+
+    def band_std(self) -> Floats:
+        """The standard deviation (m) at the grid points next to the surface (on request:
+        they are more than the vertices, and the viewers draw the vertices)."""
+        if self.process is None or len(self.band_points) == 0:
+            return np.zeros(len(self.band_points))
+        return self.process.std(self.band_points)
+
+    def vertex_areas(self) -> Floats:
+        """A third of the area of the triangles around each vertex (m^2)."""
+        t = self.vertices[self.faces]
+        area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        area = np.bincount(self.faces.ravel(), np.repeat(area / 3.0, 3), len(self.vertices))
+        return area.astype(np.float64)
+
+    def vertex_normals(self) -> Floats:
+        """Outward unit normals at the vertices (area-weighted face normals)."""
+        t = self.vertices[self.faces]
+        face = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        normals = np.stack([np.bincount(self.faces.ravel(), np.repeat(face[:, k], 3),
+                                        len(self.vertices)) for k in range(3)], axis=1)
+        return np.asarray(normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12))
+
+    def trimesh(self):  # type: ignore[no-untyped-def]
+        """The mesh as a trimesh.Trimesh with a per-vertex ``std`` attribute (m)."""
+        import trimesh
+        mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
+        mesh.vertex_attributes['std'] = self.vertex_std.astype(np.float32)
+        return mesh
+
+
+MIN_CELLS = 10
+
+
+def predict_surface(cells: ArrayLike, resolution: float, free: ArrayLike | None = None,
+                    settings: PredictionSettings = PredictionSettings(),
+                    weights: ArrayLike | None = None, prior: SurfacePrior | None = None
+                    ) -> PredictedSurface:
+    """The completed surface of the occupied cells' centres ``cells`` (N, 3) m of a map of
+    cell size ``resolution`` (``weights``: their occupancy probabilities, for the prior's
+    fit), given its free cells' centres ``free`` (module doc). ``prior``: the prior shape of
+    an earlier prediction of the same object, kept instead of fitted again (its fit is most of
+    the cost). An empty surface for fewer than :data:`MIN_CELLS` cells."""
+    from skimage.measure import marching_cubes
+    occupied = np.asarray(cells, dtype=float).reshape(-1, 3)
+    free_points = np.empty((0, 3)) if free is None else np.asarray(free, dtype=float).reshape(-1, 3)
+    if not resolution > 0:
+        raise ValueError(f'resolution {resolution}: must be > 0')
+    nothing = np.zeros((0, 3))
+    if len(occupied) < MIN_CELLS:
+        prior = SurfacePrior(Superquadric(np.full(3, resolution), (1.0, 1.0), np.eye(3), np.zeros(3)))
+        return PredictedSurface(nothing, np.zeros((0, 3), dtype=np.int64), np.zeros(0), nothing,
+                                prior, None, 0, 0, settings)
+    if prior is None and settings.prior == 'superquadric':
+        w = np.ones(len(occupied)) if weights is None else np.asarray(weights, dtype=float).ravel()
+        prior = SurfacePrior.fitted(occupied, w, resolution)
+    elif prior is None:
+        prior = SurfacePrior.ellipsoid_around(occupied, PRIOR_MARGIN * resolution)
+    obs = _observations(occupied, free_points, resolution, prior, settings)
+    process = _SparseProcess(obs, _PriorMean(prior, occupied, settings.prior_reach), settings,
+                             resolution)
+    # the prior's box and the cells', but never more than the cells' extent beyond them (a
+    # prior fitted to a sliver may reach far)
+    low, high = occupied.min(axis=0), occupied.max(axis=0)
+    reach = max(float((high - low).max()), settings.margin)
+    prior_low, prior_high = prior.bounds()
+    low = np.minimum(low, np.maximum(prior_low, low - reach)) - settings.margin
+    high = np.maximum(high, np.minimum(prior_high, high + reach)) + settings.margin
+    step = max(settings.grid_step * resolution, float(np.prod(high - low) / MAX_GRID_POINTS) ** (1 / 3))
+    axes = [np.arange(a, b + step, step) for a, b in zip(low, high)]
+    grid = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1)
+    values = process.mean(grid.reshape(-1, 3)).reshape(grid.shape[:3])
+    # Where the map has evidence, its own surface (surface_mesh's tangent planes) is the answer;
+    # elsewhere nothing in front of the touched surface is inside: the process may close the
+    # surface behind what was touched, never bridge a gap the fingers passed over.
+    planes = tangent_plane_distance(occupied, obs.normals, grid.reshape(-1, 3), resolution, obs.sheet)
+    near = cKDTree(occupied).query(grid.reshape(-1, 3))[0] <= REACH * resolution
+    flat = values.reshape(-1)
+    flat[:] = np.where(near, planes, np.maximum(flat, planes))
+    # the grid's faces are outside: the surface closes inside the box
+    values[[0, -1], :, :] = values[:, [0, -1], :] = values[:, :, [0, -1]] = np.abs(values).max()
+    if not values.min() < 0:
+        return PredictedSurface(nothing, np.zeros((0, 3), dtype=np.int64), np.zeros(0), nothing,
+                                prior, process, len(obs.points), len(process.inducing), settings)
+    verts, faces, _, _ = marching_cubes(values, 0.0, spacing=(step, step, step),
+                                        gradient_direction='descent', allow_degenerate=False)
+    vertices, faces = _without_cavities(verts + low, np.asarray(faces, dtype=np.int64))
+    band = np.abs(values) <= step
+    band_points = grid[band]
+    return PredictedSurface(vertices, np.asarray(faces, dtype=np.int64), process.std(vertices),
+                            band_points, prior, process, len(obs.points),
+                            len(process.inducing), settings)
+
+
+def predict_map_surface(centres: ArrayLike, probabilities: ArrayLike, resolution: float,
+                        settings: PredictionSettings = PredictionSettings(),
+                        occupied_threshold: float = 0.8, prior: SurfacePrior | None = None
+                        ) -> PredictedSurface:
+    """:func:`predict_surface` of a map's cells (centres (N, 3) m and occupancy
+    probabilities, every touched cell or only the occupied ones): the cells at or above
+    ``occupied_threshold`` are the surface, those at most :data:`FREE_PROBABILITY` free space."""
+    if not 0.5 < occupied_threshold < 1:
+        raise ValueError(f'occupied_threshold {occupied_threshold}: must be in (0.5, 1)')
+    points = np.asarray(centres, dtype=float).reshape(-1, 3)
+    p = np.asarray(probabilities, dtype=float).ravel()
+    occupied = p >= occupied_threshold
+    return predict_surface(points[occupied], resolution, points[p <= FREE_PROBABILITY], settings,
+                           weights=p[occupied], prior=prior)

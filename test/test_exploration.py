@@ -1,0 +1,246 @@
+"""The predicted surface with its uncertainty, the next touches, predict_surface, and the
+simulator's guided and greedy explorers."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from inhand_shape.implicit_surface import PredictionSettings, predict_surface
+from inhand_shape.known_shapes import KNOWN_SHAPES, signed_distance
+from inhand_shape.next_touch import SEPARATION, next_touches
+from inhand_shape.superquadric import Superquadric
+from inhand_shape.surface_mesh import oriented_normals
+from inhand_shape.touch_guidance import GUIDANCE_PARAMETERS, MODE_ORIENTATION, guide
+
+WORKSPACE = Path(__file__).resolve().parents[1]
+RESOLUTION = 0.005
+RADIUS = 0.04
+
+
+def _lattice(low: float = -0.07, high: float = 0.07) -> np.ndarray:
+    axis = np.arange(low, high, RESOLUTION) + RESOLUTION / 2
+    return np.stack(np.meshgrid(axis, axis, axis, indexing='ij'), axis=-1).reshape(-1, 3)
+
+
+def _sphere_cap(z_above: float = -0.01) -> tuple[np.ndarray, np.ndarray]:
+    """Cells of a 4 cm sphere's shell above ``z_above`` (what fingers touched) and the free
+    cells around its top (where they passed through air)."""
+    points = _lattice()
+    r = np.linalg.norm(points, axis=1)
+    shell = (np.abs(r - RADIUS) < 0.6 * RESOLUTION) & (points[:, 2] > z_above)
+    free = (r > RADIUS + 2 * RESOLUTION) & (r < RADIUS + 4 * RESOLUTION) & (points[:, 2] > 0.0)
+    return points[shell], points[free]
+
+
+def test_the_predicted_surface_follows_the_touched_cap_and_closes_the_sphere_unsure_where_untouched():
+    cells, free = _sphere_cap()
+    # the cap's superquadric is its sphere, and the whole sphere is within 5 cm of the cap:
+    # let the prior reach that far
+    surface = predict_surface(cells, RESOLUTION, free,
+                              PredictionSettings(prior='superquadric', prior_reach=0.05))
+    assert not surface.empty
+    error = np.abs(np.linalg.norm(surface.vertices, axis=1) - RADIUS)
+    top, bottom = surface.vertices[:, 2] > 0.0, surface.vertices[:, 2] < -0.025
+    # where touched: on the sphere to about a millimetre, and surer of it ...
+    assert error[top].mean() < 0.0015
+    # ... than where not: closed by the superquadric the cap belongs to, but unsure there,
+    # as unsure as the prior
+    assert bottom.any() and error[bottom].mean() < 0.006
+    assert np.median(surface.vertex_std[bottom]) > 2 * np.median(surface.vertex_std[top])
+    assert np.isclose(np.median(surface.vertex_std[bottom]), surface.settings.signal_std, rtol=0.2)
+    # calibrated: the true error within two standard deviations over most of the surface
+    areas = surface.vertex_areas()
+    assert areas[error <= 2 * surface.vertex_std].sum() / areas.sum() > 0.9
+    # outward faces, and normals to match
+    normals = surface.vertex_normals()
+    assert np.mean(np.einsum('ij,ij->i', normals, surface.vertices) > 0) > 0.95
+    # the grid points next to the surface carry a standard deviation too
+    band = surface.band_std()
+    assert len(band) == len(surface.band_points) > 0 and np.all(band >= 0) and band.max() <= 0.011
+
+
+def test_the_prior_is_pulled_back_where_it_reaches_past_the_touched_cells_but_not_inside():
+    from inhand_shape.implicit_surface import SurfacePrior, _PriorMean
+    sphere = SurfacePrior(Superquadric(np.full(3, RADIUS), (1.0, 1.0), np.eye(3), np.zeros(3)))
+    patch = np.array([[x, y, RADIUS] for x in (-0.005, 0.0, 0.005) for y in (-0.005, 0.0, 0.005)])
+    mean = _PriorMean(sphere, patch, reach=0.02)
+    points = np.array([[0.0, 0.0, -RADIUS],      # the far side of the sphere: 8 cm from the patch
+                       [0.0, 0.0, 0.002],        # its middle: as deep as it is far from the patch
+                       [0.0, 0.0, RADIUS - 0.005]])
+    values = mean(points)
+    assert np.isclose(values[0], 0.08 - 0.02)           # outside, by the excess over the reach
+    assert np.isclose(values[1], -(RADIUS - 0.002), atol=1e-3)    # inside, as the prior says
+    assert np.isclose(values[2], -0.005, atol=1e-3)
+
+
+def test_an_ellipsoid_prior_cannot_close_a_cap_as_the_superquadric_does():
+    cells, free = _sphere_cap()
+    fitted = predict_surface(cells, RESOLUTION, free, PredictionSettings(prior='superquadric',
+                                                                         prior_reach=0.05))
+    ellipsoid = predict_surface(cells, RESOLUTION, free, PredictionSettings(prior_reach=0.05))
+
+    def bottom_error(surface):
+        low = surface.vertices[:, 2] < -0.025
+        return np.abs(np.linalg.norm(surface.vertices[low], axis=1) - RADIUS).mean() if low.any() \
+            else np.inf
+    assert bottom_error(fitted) < bottom_error(ellipsoid)
+
+
+def test_too_few_cells_give_an_empty_surface_and_bad_settings_are_refused_by_name():
+    assert predict_surface(np.zeros((3, 3)), RESOLUTION).empty
+    assert next_touches(predict_surface(np.zeros((3, 3)), RESOLUTION), RESOLUTION) == []
+    with pytest.raises(ValueError, match=r"'length_scale' = 0.5 is refused: allowed is a number in "
+                                         r"\[0.005, 0.2\]"):
+        PredictionSettings(length_scale=0.5)
+    with pytest.raises(ValueError, match=r"'prior' = 'sphere' is refused: allowed is one of 'ellipsoid'"):
+        PredictionSettings(prior='sphere')
+    with pytest.raises(ValueError, match='resolution'):
+        predict_surface(np.zeros((20, 3)), 0.0)
+
+
+def test_next_touches_go_where_the_surface_is_unknown_into_it_and_never_below_the_support():
+    cells, free = _sphere_cap(z_above=0.0)
+    # the sphere predicted whole (its superquadric) from its upper half
+    surface = predict_surface(cells, RESOLUTION, free,
+                              PredictionSettings(prior='superquadric', prior_reach=0.05))
+    support = -0.03
+    touches = next_touches(surface, RESOLUTION, 5, support=support)
+    assert len(touches) == 5
+    gains = [t.gain for t in touches]
+    assert gains == sorted(gains, reverse=True) and gains[0] > 0
+    # the best ones are on the untouched lower half, none within 1 cm of the support
+    assert touches[0].position[2] < 0.0
+    assert all(t.position[2] > support + 0.01 for t in touches)
+    for t in touches:
+        assert np.isclose(np.linalg.norm(t.approach), 1.0)
+        assert t.approach @ t.position < 0          # moving into the sphere
+    # a ranked handful of different places, not neighbours of one
+    positions = np.array([t.position for t in touches])
+    gaps = np.linalg.norm(positions[:, None] - positions[None], axis=2) + np.eye(5)
+    assert gaps.min() >= max(SEPARATION, surface.settings.length_scale) - 1e-9
+    # a held region rules out what it covers
+    held = [(touches[0].position, 0.02)]
+    again = next_touches(surface, RESOLUTION, 5, support=support, held=held)
+    assert all(np.linalg.norm(t.position - touches[0].position) > 0.02 for t in again)
+
+
+def test_normals_point_outward_even_where_the_farthest_cell_is_a_thin_handle():
+    """A hammer: the cell farthest from the centre is at the end of the shaft, whose normal
+    is sideways; every component still ends up facing outward."""
+    shape = KNOWN_SHAPES['hammer']
+    parts = tuple(Superquadric(np.asarray(p.size), p.shape, np.asarray(p.rotation),
+                               np.asarray(p.centre)) for p in shape.parts)
+    points = _lattice(-0.15, 0.15)
+    distance = signed_distance(parts, points)
+    cells = points[np.abs(distance) < 0.6 * RESOLUTION]
+    normals = oriented_normals(cells, RESOLUTION)
+    step = 1e-4
+    gradient = np.stack([(signed_distance(parts, cells + step * e) - signed_distance(parts, cells - step * e))
+                         for e in np.eye(3)], axis=1)
+    agree = np.einsum('ij,ij->i', normals, gradient) > 0
+    assert agree.mean() > 0.9
+
+
+def test_a_static_object_gets_no_touch_near_its_support_with_the_tracker_frames_z_down():
+    cells, _ = _sphere_cap(z_above=-0.03)
+    parameters = {spec.name: spec.default for spec in GUIDANCE_PARAMETERS}
+    # an object standing on a support, tracker frame (z down): its lowest cell is the largest z
+    turned = cells * np.array([1.0, 1.0, -1.0])
+    up, on_support = MODE_ORIENTATION['static']
+    guidance = guide(turned, np.full(len(turned), 0.9), RESOLUTION, parameters, up=up,
+                     on_support=on_support, frame_id='object')
+    assert np.isclose(guidance.support, -turned[:, 2].max())
+    clearance = parameters['support_clearance']
+    assert all(-t.position[2] > guidance.support + clearance for t in guidance.suggestions)
+    best = guidance.suggestions[0]
+    assert guidance.as_dict()['suggestions'][0]['position'] == [round(float(v), 5) for v in best.position]
+
+
+@pytest.fixture(scope='module')
+def cat_map(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp('explore')
+    subprocess.run([sys.executable, '-m', 'inhand_tools.commands.build_map',
+                    str(WORKSPACE / 'bags' / 'cat_static'), '--config',
+                    str(WORKSPACE / 'config' / 'mapping_static.yaml'), '--output-dir', str(folder),
+                    '--name', 'cat', '--quiet'], check=True, capture_output=True)
+    return folder / 'cat.npz'
+
+
+def test_predict_surface_writes_the_surface_with_its_std_the_ranked_touches_and_a_picture(cat_map, tmp_path):
+    run = subprocess.run([sys.executable, '-m', 'inhand_tools.commands.predict_surface', str(cat_map),
+                          '--output-dir', str(tmp_path), '--name', 'c', '--set', 'suggestions=4'],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert 'best next touch' in run.stdout
+    for suffix in ('_predicted.ply', '_next_touch.yaml', '_uncertainty.png'):
+        assert (tmp_path / f'c{suffix}').stat().st_size > 0
+    import trimesh
+    mesh = trimesh.load(tmp_path / 'c_predicted.ply', process=False)
+    std = np.asarray(mesh.metadata['_ply_raw']['vertex']['data']['std'])
+    assert len(std) == len(mesh.vertices) > 100 and np.all(std >= 0) and std.max() < 0.05
+    answer = yaml.safe_load((tmp_path / 'c_next_touch.yaml').read_text())
+    suggestions = answer['suggestions']
+    assert len(suggestions) == 4 and answer['up'] == [0.0, 0.0, -1.0]
+    assert [s['gain'] for s in suggestions] == sorted((s['gain'] for s in suggestions), reverse=True)
+    for s in suggestions:
+        assert len(s['position']) == 3 and np.isclose(np.linalg.norm(s['approach']), 1.0, atol=1e-3)
+        # the cat stands on the table: nothing suggested within 1 cm of its lowest cell
+        assert -s['position'][2] > answer['support'] + 0.01 - 1e-6
+    # a bad parameter: its name and range, and nothing written
+    bad = subprocess.run([sys.executable, '-m', 'inhand_tools.commands.predict_surface', str(cat_map),
+                          '--output-dir', str(tmp_path / 'bad'), '--set', 'length_scale=2'],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "'length_scale'" in bad.stderr and '0.2' in bad.stderr
+    assert not (tmp_path / 'bad').exists()
+
+
+def test_guided_and_greedy_explorers_choose_other_strokes_and_random_sessions_stay_as_they_were():
+    from inhand_sim.exploration import ExplorationSettings, parse_hand_setting
+    from inhand_sim.session import SessionSettings, simulate
+    base = SessionSettings(object_name='box', static=True, rate=15.0, duration=40.0, seed=3)
+    assert 'explorer' not in json.loads(base.to_json())['exploration']
+    assert parse_hand_setting('explorer=guided') == ('explorer', 'guided')
+    with pytest.raises(ValueError, match='random, guided, greedy'):
+        parse_hand_setting('explorer=smart')
+    sessions = {kind: simulate(replace(base, exploration=replace(ExplorationSettings(), explorer=kind)))
+                for kind in ('random', 'guided', 'greedy')}
+    strokes = {kind: [e for e in s.exploration.events if e[1] == 'stroke'] for kind, s in sessions.items()}
+    assert all(len(v) >= 6 for v in strokes.values())
+    first = {kind: s.exploration.positions[:, s.exploration.contact.any(axis=0)]
+             for kind, s in sessions.items()}
+    assert not np.array_equal(first['random'], first['guided'])
+    assert not np.array_equal(first['random'], first['greedy'])
+    # the same settings give the same session
+    again = simulate(replace(base, exploration=replace(ExplorationSettings(), explorer='guided')))
+    assert np.array_equal(again.poses, sessions['guided'].poses)
+
+
+def test_the_guide_sends_fingers_to_its_suggestions():
+    from inhand_sim.guidance import START_REACH, StrokeGuide
+    cells, _ = _sphere_cap(z_above=0.0)
+    guide_ = StrokeGuide('guided', support=None)
+    guide_.touched(cells, stroke=True)
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(400, 3))
+    starts = RADIUS * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    paths = [np.stack([s, s * 0.99]) for s in starts]
+    chosen = guide_.choose(starts, np.ones(len(starts), dtype=bool), paths)
+    assert chosen is not None and guide_.plans == 1
+    # the start is within reach of the best suggestion, on the untouched half
+    assert starts[chosen][2] < 0.01
+    assert guide_.surface is not None
+    greedy = StrokeGuide('greedy', support=None)
+    greedy.touched(cells, stroke=True)
+    far = greedy.choose(starts, np.ones(len(starts), dtype=bool), paths)
+    assert starts[far][2] < -0.03          # the farthest from everything touched: the bottom
+    with pytest.raises(ValueError):
+        StrokeGuide('random', support=None)
+    assert START_REACH > 0
