@@ -58,18 +58,17 @@ from inhand_shape.superquadric import Superquadric, fit_superquadric
 from inhand_shape.surface_mesh import REACH, oriented_normals, tangent_plane_distance
 
 __all__ = ['FREE_PROBABILITY', 'PREDICTION_PARAMETERS', 'PredictedSurface', 'PredictionSettings',
-           'SurfacePrior', 'predict_map_surface', 'predict_surface',
-           'thinned']
+           'SurfacePrior', 'predict_map_surface', 'predict_surface', 'thinned']
 
 OUTSIDE_OFFSET = 2.0      # cells: the outside observation of each occupied cell, along its normal
 INSIDE_OFFSET = 1.0       # cells: the inside one (short: a wall may be thin)
-FREE_PROBABILITY = 0.6     # cells at most this likely occupied, and visited, are free space
-FREE_GAP = 1.5           # cells: free cells nearer than this to an occupied one are left out
+FREE_PROBABILITY = 0.6    # cells at most this likely occupied, and visited, are free space
+FREE_GAP = 1.5            # cells: free cells nearer than this to an occupied one are left out
 SIDE_REACH = 3.0          # cells: the free space that says which side of a cell is outside
 MIN_SIDE_CELLS = 2        # free cells on a side that make it outside
 SIDE_CONE = 0.85          # ... within this cosine of the normal's axis
 FREE_REACH = 0.02         # m: free cells the prior puts farther outside than this say nothing new
-MAX_INDUCING = 400       # inducing points of the sparse process
+MAX_INDUCING = 400        # inducing points of the sparse process
 MAX_OBSERVATIONS = 6000   # observations used (thinned on a grid beyond)
 PRIOR_MARGIN = 1.0        # cells added to the ellipsoid's half extents
 PRIOR_FIT_CELLS = 300     # cells the prior's superquadric is fitted to (thinned on a grid)
