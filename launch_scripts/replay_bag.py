@@ -157,10 +157,9 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             if group.run('shape', ['extract_shape', str(npz), '--output-dir', str(output), '--quiet',
                                    f'--up={up}', *configs]) != 0:
                 return 1
-            # what the map does not know yet, and where to touch next
-            mode = 'tracked' if up == 'z' else 'static'
+            # what the map does not know yet, and where to touch next (the map records the mode)
             if group.run('predict', ['predict_surface', str(npz), '--output-dir', str(output),
-                                     '--quiet', f'--up={up}', f'--mode={mode}', *configs]) != 0:
+                                     '--quiet', f'--up={up}', *configs]) != 0:
                 return 1
         if truth.exists():
             if group.run('metrics', ['map_metrics', str(npz), '--truth', str(truth), '--bag',

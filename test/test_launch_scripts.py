@@ -201,6 +201,10 @@ def test_replaying_a_bundled_bag_makes_the_map_pictures_and_metrics(tmp_path):
                  'cat_static_predicted.ply', 'cat_static_next_touch.yaml'):
         assert (tmp_path / name).stat().st_size > 0, name
     import yaml
+
+    from inhand_tools.map_cells import load_map
+    # the occupancy node records the graph's mode (the registration node's) in its map
+    assert load_map(tmp_path / 'cat_static.npz').metadata['extra']['registration_mode'] == 'static'
     guidance = yaml.safe_load((tmp_path / 'cat_static_next_touch.yaml').read_text())
     assert guidance['support'] is not None and guidance['suggestions']   # static: on the table
     metrics = json.loads((tmp_path / 'cat_static.metrics.json').read_text())

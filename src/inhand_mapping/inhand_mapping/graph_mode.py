@@ -2,7 +2,8 @@
 
 One mode for the whole graph: the registration node's ``mode`` parameter (static or tracked).
 A node that depends on it (the stereo node places its pairs by it, the exploration node knows
-from it whether the object stands on a support) looks for the publisher of the latched
+from it whether the object stands on a support, the occupancy node records it in the maps it
+saves) looks for the publisher of the latched
 ``registration/object_frame`` every :data:`QUERY_PERIOD` seconds, asks that node for its
 ``mode`` over its ``get_parameters`` service, and once one answers calls back with the mode and
 where it came from. :attr:`GraphModeQuery.source` says, for people, where things stand.
@@ -15,6 +16,8 @@ from typing import Any
 
 from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
+
+from inhand_common.ros_clock import steady_timer
 
 __all__ = ['MODES', 'QUERY_PERIOD', 'GraphModeQuery']
 
@@ -31,7 +34,8 @@ class GraphModeQuery:
         self.on_mode = on_mode
         self.source = f'no node publishes {OBJECT_FRAME_TOPIC} yet'
         self._pending: Any = None
-        self._timer = node.create_timer(period, self._ask)
+        # the steady clock: a node on sim time asks even before anything publishes /clock
+        self._timer = steady_timer(node, period, self._ask)
 
     def _ask(self) -> None:
         if self._pending is not None:

@@ -66,6 +66,7 @@ from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_transforms import Transform, TransformPublisher
 from inhand_mapping.cloud_layouts import unpack_registered, vision_log_odds
 from inhand_mapping.global_map import GlobalMap
+from inhand_mapping.graph_mode import GraphModeQuery
 from inhand_mapping.map_io import GridColours
 from inhand_mapping.map_products import MapProducts, resume_from, save_map
 from inhand_mapping.map_updates import MapUpdates
@@ -99,6 +100,10 @@ class OccupancyNode(Node):
         self._settled_shown = False   # the map with what it holds back applied is shown
         self._latest_stamp = None
         self._colours: GridColours | None = None   # the latest occupancy/textured, by cell
+        # the graph's mode (the registration node's), recorded in the saved maps: the tools
+        # then know a static object stands on a support in the tracker frame
+        self.registration_mode: str | None = None
+        self._graph_mode = GraphModeQuery(self, self._on_graph_mode)
         self.frames = config.frames
         self.activity = OccupancyActivity()
         self._points_sub = self.create_subscription(
@@ -265,6 +270,9 @@ class OccupancyNode(Node):
             if ok:
                 self.get_logger().info(f'autosaved {message}')
 
+    def _on_graph_mode(self, mode: str, node: str) -> None:
+        self.registration_mode = mode
+
     def save(self) -> tuple[bool, str]:
         """Write the map set (map_products.save_map); (success, paths or the reason)."""
         saved = self.map.settled()   # the live map goes on holding back (see the top)
@@ -278,7 +286,9 @@ class OccupancyNode(Node):
                              self.config.occupied_threshold, self.frames.map_frame,
                              extra={'node': self.get_fully_qualified_name(),
                                     'fusion': self.config.fusion if self.map.fusing
-                                    else 'none'},
+                                    else 'none',
+                                    **({'registration_mode': self.registration_mode}
+                                       if self.registration_mode else {})},
                              colours=colours, textured=textured,
                              local_maps=saved.local_maps())
         except OSError as error:

@@ -14,8 +14,9 @@ Reads a map (NPZ from occupancy/save or build_map, or its PLY) and writes, in ``
   next touches as arrows.
 
 Parameters come from the ``exploration_node`` section of ``--config`` files, then ``--set
-NAME=VALUE`` (docs/exploration.md lists them). ``--mode static`` (or a map build_map made in
-static mode) keeps the suggestions off the support the object stands on. Exit code 2 for a
+NAME=VALUE`` (docs/exploration.md lists them). ``--mode static`` (or a map made in static mode,
+which build_map and occupancy_node record) keeps the suggestions off the support the object
+stands on. Exit code 2 for a
 file that is not a map or a bad parameter; a map with too few occupied cells gets one line
 saying so, and no surface file.
 """
@@ -52,8 +53,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--mode', choices=('static', 'tracked'),
                         help='the registration mode the map was made in: static, the object stands '
                         'on a support below its lowest cell where nothing is suggested (default: '
-                        'what build_map recorded in the map; a node-saved map records none, and '
-                        'then nothing is excluded)')
+                        'what the map records: build_map and occupancy_node record the graph\'s '
+                        'mode; a map without it has nothing excluded)')
     args = parser.parse_args(argv)
     try:
         parameters = guidance_parameters(args.config, args.set)
