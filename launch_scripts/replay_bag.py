@@ -106,8 +106,11 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
                       exploration=bool(getattr(view_args, 'view', False)))
         view = start_view(group, view_args)
         # The registration node's first points must find the occupancy node (and the
-        # view) listening.
-        if not watch.wait_connected(subscribers=3 if view else 2):
+        # view) listening. The graph shows a reader before the registration node's writer
+        # has matched it; the view starts with the shape and exploration nodes, which load
+        # for a while on a busy machine, so it gets longer to match (a fast replay of a
+        # small bag is over in well under a second).
+        if not watch.wait_connected(subscribers=3 if view else 2, settle=2.0 if view else 0.5):
             print('[launch] the mapping nodes did not come up', file=sys.stderr)
             return 1
         clock = ['--clock'] if sim_time else []
