@@ -21,8 +21,9 @@ machine the map's own latency does not grow.
 prior shape (a superquadric fit, most of the cost) is refitted only when the occupied cells
 have grown by a quarter since the last fit. The graph's mode comes from the registration node
 (graph_mode.py): in static mode the object stands on a support below its lowest cell, where
-nothing is suggested, and the tracker's -z is up; in tracked mode it is held, +z up. Until the
-mode is known nothing is excluded.
+nothing is suggested, and the tracker's -z is up; in tracked mode it is held, +z up. The first
+prediction waits up to 10 s for the mode; without one (no registration node) nothing is
+excluded.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from inhand_shape.implicit_surface import SurfacePrior
 from inhand_shape.touch_guidance import EXPLORATION_NODE_PARAMETERS, MODE_ORIENTATION, Guidance, guide
 
 NICENESS = 10           # added to the process's nice value (lower priority than the map)
+MODE_WAIT = 10.0        # s: no prediction without the graph's mode before this (the support)
 REFIT_GROWTH = 1.25      # the prior is refitted when the occupied cells grew by this factor
 ARROW_LENGTH = 0.03      # m
 STD_TOP = 0.01           # m: the colour scale's top (yellow)
@@ -78,6 +80,7 @@ class ExplorationNode(Node):
         self._prior_cells = 0
         self.predictions = 0
         self._mode: str | None = None
+        self._started = time.monotonic()
         self._graph_mode = GraphModeQuery(self, self._on_graph_mode)
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -124,6 +127,8 @@ class ExplorationNode(Node):
             cells, frame_id, version, mode = self._cells, self._frame_id, self._version, self._mode
         if cells is None or version == self._done or len(cells) < 2:
             return
+        if mode is None and time.monotonic() - self._started < MODE_WAIT:
+            return      # the registration node answers within a second in a running graph
         self._done = version
         centres = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(np.float64)
         lattice = infer_lattice(centres)
