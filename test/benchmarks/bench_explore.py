@@ -46,20 +46,11 @@ from pathlib import Path
 
 import numpy as np
 
+from inhand_shape.superquadric import area_samples
+
 WORKSPACE = Path(__file__).resolve().parents[2]
 CONFIG = WORKSPACE / 'config'
 TARGET_F = 0.8
-
-
-def _area_samples(vertices: np.ndarray, faces: np.ndarray, count: int, rng) -> np.ndarray:
-    t = vertices[faces]
-    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-    pick = rng.choice(len(faces), count, p=area / area.sum())
-    u, v = rng.random(count), rng.random(count)
-    flip = u + v > 1
-    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-    t = t[pick]
-    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
 
 
 def _truth_in_map_frame(truth_path: Path, static: bool):
@@ -115,7 +106,7 @@ def run_session(job: tuple) -> list[dict]:
         if surface.empty:
             row.update(completed_f=0.0, calibrated=math.nan)
         else:
-            samples = _area_samples(surface.vertices, surface.faces, 20000, rng)
+            samples = area_samples(surface.vertices, surface.faces, 20000, rng)
             row['completed_f'] = point_metrics(samples, whole)['fscore_at_5mm']
             error, _ = whole.distance(surface.vertices)
             areas = surface.vertex_areas()
@@ -240,7 +231,7 @@ def validation_check(folder: Path) -> None:
         whole = SurfaceTruth(truth['surface'], truth['surface'])
         map_f = point_metrics(cells.centres[cells.probabilities >= 0.8], whole)['fscore_at_5mm']
         surface = predict_map_surface(cells.centres, cells.probabilities, cells.lattice.resolution)
-        samples = _area_samples(surface.vertices, surface.faces, 20000, rng)
+        samples = area_samples(surface.vertices, surface.faces, 20000, rng)
         completed_f = point_metrics(samples, whole)['fscore_at_5mm']
         error, _ = whole.distance(surface.vertices)
         areas = surface.vertex_areas()
@@ -282,7 +273,7 @@ def compare(folders: list[Path], specs: list[str]) -> None:
             surface = implicit.predict_map_surface(
                 cells.centres, cells.probabilities, cells.lattice.resolution, settings,
                 prior=prior if settings.prior == 'superquadric' else None)
-            samples = _area_samples(surface.vertices, surface.faces, 10000, rng)
+            samples = area_samples(surface.vertices, surface.faces, 10000, rng)
             scores.append(point_metrics(samples, whole)['fscore_at_5mm'])
             error, _ = whole.distance(surface.vertices)
             areas = surface.vertex_areas()

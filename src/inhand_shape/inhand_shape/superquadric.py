@@ -46,7 +46,7 @@ from scipy.special import beta  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Floats, Matrix3, Points, Vector3, Weights
 
-__all__ = ['EXPONENT_RANGE', 'FitResult', 'Superquadric', 'fit_least_squares',
+__all__ = ['EXPONENT_RANGE', 'FitResult', 'Superquadric', 'area_samples', 'fit_least_squares',
            'fit_superquadric', 'radial_distance']
 
 EXPONENT_RANGE = (0.1, 1.9)    # box-like to diamond-like; outside it the shape degenerates
@@ -138,15 +138,7 @@ class Superquadric:
     def surface_samples(self, count: int, rng: np.random.Generator) -> Points:
         """``count`` points spread uniformly over the surface (by area)."""
         vertices, faces = self.mesh(5)
-        triangles = vertices[faces]
-        areas = 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0],
-                                              triangles[:, 2] - triangles[:, 0]), axis=1)
-        chosen = rng.choice(len(faces), size=count, p=areas / areas.sum())
-        u, v = rng.random((2, count))
-        flip = u + v > 1
-        u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
-        t = triangles[chosen]
-        return np.asarray(t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0]))
+        return area_samples(vertices, faces, count, rng)
 
     def as_dict(self) -> dict[str, Any]:
         """Plain values for YAML/JSON: size, exponents, centre, quaternion (x, y, z, w)."""
@@ -154,6 +146,20 @@ class Superquadric:
                 'exponents': [round(float(v), 3) for v in self.shape],
                 'position': [round(float(v), 5) for v in self.centre],
                 'orientation': [round(float(v), 6) for v in self.quaternion]}
+
+
+def area_samples(vertices: Points, faces: NDArray[np.int64], count: int,
+                 rng: np.random.Generator) -> Points:
+    """``count`` points spread uniformly (by area) over the triangle mesh (vertices, faces)."""
+    triangles = vertices[faces]
+    areas = 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0],
+                                          triangles[:, 2] - triangles[:, 0]), axis=1)
+    chosen = rng.choice(len(faces), size=count, p=areas / areas.sum())
+    u, v = rng.random((2, count))
+    flip = u + v > 1
+    u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+    t = triangles[chosen]
+    return np.asarray(t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0]))
 
 
 @functools.lru_cache(maxsize=8)
