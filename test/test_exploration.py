@@ -18,7 +18,7 @@ from inhand_shape.known_shapes import KNOWN_SHAPES, signed_distance
 from inhand_shape.next_touch import SEPARATION, next_touches
 from inhand_shape.superquadric import Superquadric
 from inhand_shape.surface_mesh import oriented_normals
-from inhand_shape.touch_guidance import GUIDANCE_PARAMETERS, MODE_ORIENTATION, guide
+from inhand_shape.touch_guidance import GUIDANCE_PARAMETERS, MODE_ORIENTATION, guide, std_colours
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 RESOLUTION = 0.005
@@ -147,6 +147,33 @@ def test_normals_point_outward_even_where_the_farthest_cell_is_a_thin_handle():
                          for e in np.eye(3)], axis=1)
     agree = np.einsum('ij,ij->i', normals, gradient) > 0
     assert agree.mean() > 0.9
+
+
+def test_normals_stay_consistent_along_a_long_bent_strip_hundreds_of_cells_from_its_root():
+    """A half ring 1 m round, one cell thick: each cell's sign is carried from the root along
+    a spanning tree hundreds of levels deep; every normal must end up facing away from the
+    ring's centre, none flipped part way."""
+    angle = np.arange(0.0, np.pi, RESOLUTION / 0.3)
+    ring = np.stack([0.3 * np.cos(angle), 0.3 * np.sin(angle)], axis=1)
+    cells = np.concatenate([np.column_stack([ring, np.full(len(ring), z)])
+                            for z in RESOLUTION * np.arange(4)])
+    normals = oriented_normals(cells, RESOLUTION)
+    radial = cells[:, :2] / np.linalg.norm(cells[:, :2], axis=1, keepdims=True)
+    assert len(cells) > 700
+    assert np.all(np.einsum('ij,ij->i', normals[:, :2], radial) > 0.9)
+
+
+def test_the_std_colour_scale_runs_dark_to_yellow_and_the_live_page_uses_the_same_stops():
+    top = 0.01
+    colours = std_colours(np.array([0.0, 0.25, 0.5, 1.0, 3.0]) * top, top)
+    assert np.allclose(colours[0], np.array([68, 1, 84]) / 255)       # dark blue: known
+    assert np.allclose(colours[3], np.array([253, 231, 37]) / 255)    # yellow: a guess
+    assert np.allclose(colours[4], colours[3])                         # clipped beyond the top
+    assert np.all(np.diff(colours.sum(axis=1)[:4]) > 0)               # brighter as it grows
+    page = (Path(__file__).resolve().parents[1] / 'src' / 'inhand_view' / 'inhand_view' / 'web'
+            / 'view.js').read_text()
+    stops = json.loads(page.split('const VIRIDIS = ')[1].split(';')[0])
+    assert np.allclose(std_colours(np.linspace(0.0, top, 5), top) * 255, stops)
 
 
 def test_a_static_object_gets_no_touch_near_its_support_with_the_tracker_frames_z_down():

@@ -2,7 +2,7 @@
 """Guided exploration against random and coverage-greedy, and the completed surface.
 
     .venv/bin/python test/benchmarks/bench_explore.py [--objects box,cat,cup,duck]
-        [--modes static,tracked] [--explorers random,guided,greedy] [--seeds 1,2]
+        [--modes static,tracked] [--explorers random,guided,greedy] [--seeds 2,3]
         [--strokes 10,20,30,40,60,80] [--duration 160] [--jobs 2] [--quick] [--keep DIR]
         [--hand NAME=VALUE ...] [--no-validation] [--no-cost]
     .venv/bin/python test/benchmarks/bench_explore.py --compare DIR[,DIR] [SPEC ...]
@@ -298,7 +298,8 @@ def main() -> int:
     parser.add_argument('--objects', default='box,cat,cup,duck')
     parser.add_argument('--modes', default='static,tracked')
     parser.add_argument('--explorers', default='random,guided,greedy')
-    parser.add_argument('--seeds', default='1,2')
+    # seed 1 is where the prediction's settings were chosen (docs/exploration.md): not reported
+    parser.add_argument('--seeds', default='2,3')
     parser.add_argument('--strokes', default='10,20,30,40,60,80')
     parser.add_argument('--duration', type=float, default=160.0)
     parser.add_argument('--jobs', type=int, default=2)

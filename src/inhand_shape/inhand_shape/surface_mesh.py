@@ -41,8 +41,8 @@ from scipy.spatial import cKDTree  # type: ignore[import-untyped]
 from inhand_common.array_types import Floats, Points
 from inhand_common.cell_lattice import Lattice, cell_indices
 
-__all__ = ['NORMAL_RADIUS', 'REACH', 'SurfaceMesh', 'cell_normals', 'oriented_normals',
-           'surface_mesh', 'tangent_plane_distance']
+__all__ = ['NORMAL_RADIUS', 'REACH', 'SurfaceMesh', 'cell_normals', 'nearest_cells',
+           'oriented_normals', 'surface_mesh', 'tangent_plane_distance']
 
 NORMAL_RADIUS = 2.5    # cells: the neighbourhood of a cell's normal
 REACH = 1.5            # cells: how far from a cell the surface may go
@@ -105,9 +105,7 @@ def _orient(points: Points, normals: Floats, rows: NDArray[np.intp], cols: NDArr
     tree = minimum_spanning_tree(graph)
     tree = tree + tree.T
     count, label = connected_components(tree, directed=False)
-    sign = np.ones(n)
-    depth = np.full(n, -1)
-    parent = np.full(n, -1)
+    parent = np.arange(n)
     centres = np.stack([np.bincount(label, points[:, k]) for k in range(3)], axis=1) \
         / np.bincount(label)[:, None]
     for component in range(count):
@@ -115,17 +113,13 @@ def _orient(points: Points, normals: Floats, rows: NDArray[np.intp], cols: NDArr
         root = members[np.argmax(np.linalg.norm(points[members] - centres[component], axis=1))]
         order, predecessors = breadth_first_order(tree, root, directed=False)
         parent[order[1:]] = predecessors[order[1:]]
-        depth[root] = 0
-        # breadth-first order lists parents before children: depths in one pass per level
-        rest = order[1:]
-        while len(rest):
-            ready = depth[parent[rest]] >= 0
-            depth[rest[ready]] = depth[parent[rest[ready]]] + 1
-            rest = rest[~ready]
-    for level in range(1, int(depth.max()) + 1):
-        at = np.flatnonzero(depth == level)
-        same = np.einsum('ij,ij->i', normals[at], normals[parent[at]]) >= 0
-        sign[at] = sign[parent[at]] * np.where(same, 1.0, -1.0)
+    # a cell's sign is the product of the flips on its path to the root: pointer jumping
+    # (each round doubles the path covered) takes log2(depth) vectorised rounds, not one per
+    # level of the tree
+    sign: Floats = np.where(np.einsum('ij,ij->i', normals, normals[parent]) >= 0, 1.0, -1.0)
+    while np.any(parent[parent] != parent):
+        sign = sign * sign[parent]
+        parent = parent[parent]
     outward = np.einsum('ij,ij->i', normals * sign[:, None], points - centres[label]) > 0
     share = np.bincount(label, outward) / np.bincount(label)
     return normals * (sign * np.where(share[label] < 0.5, -1.0, 1.0))[:, None]
@@ -138,15 +132,25 @@ def oriented_normals(points: Points, resolution: float) -> Floats:
     return _orient(points, normals, rows, cols)
 
 
+def nearest_cells(cells: Points, where: Points, tree: cKDTree | None = None
+                  ) -> tuple[Floats, NDArray[np.intp]]:
+    """Distances and indices (M, k) of the :data:`NEIGHBOURS` cells nearest to each point of
+    ``where``, nearest first (``tree``: a KD-tree of ``cells`` already built)."""
+    tree = cKDTree(cells) if tree is None else tree
+    distance, index = tree.query(where, k=min(NEIGHBOURS, len(cells)), workers=-1)
+    return distance.reshape(len(where), -1), index.reshape(len(where), -1)
+
+
 def tangent_plane_distance(cells: Points, normals: Floats, where: Points, resolution: float,
-                           sheet: NDArray[np.bool_] | None = None) -> Floats:
+                           sheet: NDArray[np.bool_] | None = None,
+                           neighbours: tuple[Floats, NDArray[np.intp]] | None = None) -> Floats:
     """Signed distance at ``where`` (M, 3) from the tangent planes of the nearest cells
     (step 3 of the module doc): the Gaussian-weighted mean of ``n . (x - p)`` over the
     :data:`NEIGHBOURS` nearest cells, positive on the side the normals point to. A cell of a
     ``sheet`` (outside on both sides) counts as a slab half a cell thick: ``|n . (x - p)| -
-    resolution / 2``."""
-    distance, nearest = cKDTree(cells).query(where, k=min(NEIGHBOURS, len(cells)))
-    distance, nearest = distance.reshape(len(where), -1), nearest.reshape(len(where), -1)
+    resolution / 2``. ``neighbours``: :func:`nearest_cells` of ``where``, when the caller
+    has it already."""
+    distance, nearest = nearest_cells(cells, where) if neighbours is None else neighbours
     weight = np.exp(-(distance / resolution) ** 2)
     planes = np.einsum('ikj,ikj->ik', normals[nearest], where[:, None, :] - cells[nearest])
     if sheet is not None:

@@ -37,8 +37,25 @@ __all__ = [
     'guidance_file_names',
     'guide',
     'prediction_settings',
+    'std_colours',
     'write_guidance_files',
 ]
+
+# Viridis at five stops (dark blue, blue, teal, green, yellow): the standard deviation's colour
+# scale of the node's surface marker, predict_surface's picture and the live page (view.js
+# holds the same stops).
+_STD_STOPS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]]) / 255.0
+
+
+def std_colours(std: ArrayLike, top: float) -> np.ndarray:
+    """RGB in 0-1 (N, 3) of standard deviations ``std`` (m) from 0 (dark blue: known) to
+    ``top`` (yellow: a guess; the prediction's ``signal_std``, the spread where nothing was
+    touched)."""
+    x = np.clip(np.asarray(std, dtype=float).ravel() / max(top, 1e-12), 0.0, 1.0) * (len(_STD_STOPS) - 1)
+    low = np.minimum(np.floor(x).astype(int), len(_STD_STOPS) - 2)
+    t = (x - low)[:, None]
+    return np.asarray(_STD_STOPS[low] * (1.0 - t) + _STD_STOPS[low + 1] * t)
+
 
 # The exploration node's parameters (its section of a parameter file; predict_surface reads
 # the same section): the process's, and these.

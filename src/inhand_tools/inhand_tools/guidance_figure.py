@@ -9,24 +9,17 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from inhand_shape.touch_guidance import Guidance
+from inhand_shape.touch_guidance import Guidance, std_colours
 from inhand_tools import drawing
 from inhand_tools.drawing import OBLIQUE, Camera, View
 from inhand_tools.map_cells import MapCells
 from inhand_tools.shape_figure import PANEL, cells_panel, map_up, shaded_mesh
 
-__all__ = ['guidance_figure', 'std_colours']
+__all__ = ['guidance_figure']
 
 SURFACE_GREY = (175, 175, 175)
 TOUCH_COLOUR = (40, 40, 230)        # BGR red
 ARROW_LENGTH = 0.03                 # m
-
-
-def std_colours(std: np.ndarray, top: float) -> np.ndarray:
-    """BGR (N, 3) of standard deviations on the viridis scale from 0 to ``top`` (m)."""
-    level = np.clip(np.asarray(std, dtype=float) / max(top, 1e-12), 0.0, 1.0)
-    lut = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cv2.COLORMAP_VIRIDIS)[:, 0]
-    return lut[np.round(level * 255).astype(int)].astype(float)
 
 
 def guidance_figure(cells: MapCells, guidance: Guidance, title: str, threshold: float = 0.8,
@@ -47,7 +40,7 @@ def guidance_figure(cells: MapCells, guidance: Guidance, title: str, threshold: 
     face_std = surface.vertex_std[surface.faces].mean(axis=1) if not surface.empty else np.zeros(0)
     std_panel = cells_panel(camera, cells, np.zeros(len(cells.centres), dtype=bool),
                             lambda image, f: shaded_mesh(image, camera, surface.vertices, surface.faces,
-                                                         std_colours(face_std, top), f),
+                                                         255.0 * std_colours(face_std, top)[:, ::-1], f),
                             'predicted surface',
                             f'std 0 (dark) to {top * 1000:.0f} mm (yellow)' if not surface.empty
                             else 'too few cells to predict')

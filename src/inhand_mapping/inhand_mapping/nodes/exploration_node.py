@@ -48,23 +48,18 @@ from inhand_common.rotations import matrix_to_quaternion
 from inhand_mapping.graph_mode import GraphModeQuery
 from inhand_mapping.qos import LATCHED_QOS
 from inhand_shape.implicit_surface import SurfacePrior
-from inhand_shape.touch_guidance import EXPLORATION_NODE_PARAMETERS, MODE_ORIENTATION, Guidance, guide
+from inhand_shape.touch_guidance import (
+    EXPLORATION_NODE_PARAMETERS,
+    MODE_ORIENTATION,
+    Guidance,
+    guide,
+    std_colours,
+)
 
 NICENESS = 10           # added to the process's nice value (lower priority than the map)
 MODE_WAIT = 10.0        # s: no prediction without the graph's mode before this (the support)
 REFIT_GROWTH = 1.25      # the prior is refitted when the occupied cells grew by this factor
 ARROW_LENGTH = 0.03      # m
-STD_TOP = 0.01           # m: the colour scale's top (yellow)
-
-
-def _viridis(level: np.ndarray) -> np.ndarray:
-    """RGB in 0-1 of levels in 0-1 on a viridis-like ramp (dark blue, teal, yellow)."""
-    anchors = np.array([[0.27, 0.00, 0.33], [0.23, 0.32, 0.55], [0.13, 0.57, 0.55],
-                        [0.37, 0.79, 0.38], [0.99, 0.91, 0.14]])
-    x = np.clip(level, 0.0, 1.0) * (len(anchors) - 1)
-    low = np.minimum(np.floor(x).astype(int), len(anchors) - 2)
-    t = (x - low)[:, None]
-    return anchors[low] * (1 - t) + anchors[low + 1] * t
 
 
 class ExplorationNode(Node):
@@ -166,7 +161,7 @@ class ExplorationNode(Node):
         corners = surface.faces.ravel()
         mesh.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in surface.vertices[corners]]
         mesh.colors = [ColorRGBA(r=float(r), g=float(g), b=float(b), a=0.9)
-                       for r, g, b in _viridis(surface.vertex_std[corners] / STD_TOP)]
+                       for r, g, b in std_colours(surface.vertex_std[corners], surface.settings.signal_std)]
         self._surface.publish(mesh)
         array = MarkerArray()
         clear = Marker()

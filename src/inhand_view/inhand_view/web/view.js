@@ -284,8 +284,9 @@
   }
 
   // The exploration node's predicted surface as a heat map of its standard deviation
-  // (dark blue known, yellow 10 mm or more: a guess) and the next touches as red arrows
-  // onto it, the best one thicker.
+  // (dark blue known, yellow 10 mm or more: a guess, the prediction's default signal_std) and
+  // the next touches as red arrows onto it, the best one thicker. The stops are
+  // touch_guidance.std_colours' (the node's surface marker and predict_surface's picture).
   const VIRIDIS = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
   function stdRgb(metres) {
     const x = Math.min(1, Math.max(0, metres / 0.01)) * (VIRIDIS.length - 1);
