@@ -72,6 +72,26 @@ def test_the_fit_recovers_superquadrics_across_the_shape_range_from_partial_nois
     assert ours < _chamfer(classic.superquadric, truth, rng)
 
 
+def test_the_fits_vectorised_jacobian_is_scipys_own_forward_difference_one():
+    """The fit's Jacobian (all 11 shifted parameter vectors in one pass) against scipy's
+    '2-point' approx_derivative with the same bounds: in a turned frame, with a step that
+    must turn back at the exponents' upper bound, and at a zero rotation."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    from inhand_shape.superquadric import EXPONENT_RANGE, _Parameters
+    rng = np.random.default_rng(4)
+    points = rng.normal(size=(400, 3)) * 0.03
+    packing = _Parameters(Rotation.from_rotvec([0.3, -0.5, 0.9]).as_matrix(), (0.001, 0.2))
+    scale = rng.uniform(0.2, 1.0, len(points))
+    at_bound = packing.vector(np.array([0.03, 0.02, 0.01]), (EXPONENT_RANGE[1], 0.4), np.zeros(3))
+    for x in (packing.vector(np.array([0.04, 0.02, 0.015]), (0.5, 1.2), np.array([0.002, -0.001, 0.003])),
+              at_bound + np.r_[0, 0, 0, 0, 0, 0.3, -0.2, 0.1, 0, 0, 0], at_bound):
+        expected = approx_derivative(lambda v: scale * packing.distances(v, points), x, method='2-point',
+                                     bounds=(packing.lower, packing.upper))
+        assert np.allclose(packing.jacobian(x, points, scale), expected, rtol=0,
+                           atol=1e-6 * np.abs(expected).max())
+
+
 def test_the_surface_mesh_is_closed_where_the_cells_are_and_open_where_they_are_not():
     rng = np.random.default_rng(4)
     sphere = Superquadric(np.full(3, 0.04), (1.0, 1.0), np.eye(3), CENTRE)
