@@ -4,13 +4,15 @@
 Run from the workspace root with the workspace's environment::
 
     .venv/bin/python test/benchmarks/bench_shape.py [--shapes NAME ...] [--modes static tracked]
-                                                    [--keep DIR] [--duration S]
+                                                    [--keep DIR] [--duration S] [--stereo]
 
 Each object of ``inhand_shape.known_shapes`` (single superquadrics from box-like to
 diamond-like at 3-15 cm, and two- and three-part objects) is meshed, explored by
 ``simulate_session`` (120 s, 30 Hz, 5 cm/s, static on the table and held in the other hand),
 mapped by ``build_map`` with the shipped parameter files, and its map given to the shape
-extraction. Per session it prints:
+extraction; with ``--stereo`` each session also has one stereo pair of the object before the
+exploration (``simulate_session --stereo``), fused into the map by ``build_map --config
+config/stereo.yaml`` (touch + one stereo pair). Per session it prints:
 
 * parts found against the truth's part count;
 * per part matched to a true part (nearest centre): the sizes' error (after matching axes,
@@ -77,8 +79,10 @@ def _axis_errors(fit, truth) -> tuple[float, float | None, float, float | None]:
 
 
 def session(name: str, static: bool, folder: Path, duration: float, seed: int = 7,
-            focus_on_handle: bool = True):
-    """(map cells, true parts in the map frame, truth surface points in the map frame)."""
+            focus_on_handle: bool = True, stereo: bool = False):
+    """(map cells, true parts in the map frame, truth surface points in the map frame);
+    ``stereo``: the session also has one stereo pair before the exploration, which
+    ``build_map`` fuses in with the shipped stereo configuration."""
     from inhand_common.ground_truth import in_frame, load_truth, pose_at
     from inhand_common.rotations import quaternion_to_matrix
     from inhand_shape.known_shapes import KNOWN_SHAPES, union_mesh
@@ -99,16 +103,18 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
         radius = float(np.clip(0.8 * part.size.max(), 0.015, 0.04))
         focus = ['--hand', 'focus_centre=' + ','.join(f'{v:.4f}' for v in part.centre),
                  '--hand', f'focus_radius={radius:.3f}'] + (['--hand', 'held_scale=0'] if static else [])
-    tag = f'{name}_{"static" if static else "tracked"}_{seed}' + ('_free' if focus and static else '')
+    tag = f'{name}_{"static" if static else "tracked"}_{seed}' + ('_free' if focus and static else '') \
+        + ('_stereo' if stereo else '')
     bag = folder / tag
     if not bag.exists():
         simulate(['--object', str(mesh_file), '--static' if static else '--moving', '--rate', '30',
                   '--speed', '5', '--duration', str(duration), '--seed', str(seed), '--output',
-                  str(bag), '--quiet', *focus])
-    config = CONFIG / ('mapping_static.yaml' if static else 'mapping.yaml')
+                  str(bag), '--quiet', *focus, *(['--stereo'] if stereo else [])])
+    configs = ['--config', str(CONFIG / ('mapping_static.yaml' if static else 'mapping.yaml'))]
+    if stereo:
+        configs += ['--config', str(CONFIG / 'stereo.yaml')]
     with contextlib.redirect_stdout(io.StringIO()):
-        build_map([str(bag), '--config', str(config), '--output-dir', str(folder / 'maps'), '--quiet',
-                   '--force'])
+        build_map([str(bag), *configs, '--output-dir', str(folder / 'maps'), '--quiet', '--force'])
     cells = load_map(folder / 'maps' / f'{tag}.npz')
     truth = load_truth(f'{bag}.truth.npz')
     if static:
@@ -122,13 +128,13 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
 
 
 def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
-            focus_on_handle: bool = True) -> dict:
+            focus_on_handle: bool = True, stereo: bool = False) -> dict:
     from inhand_shape.known_shapes import KNOWN_SHAPES
     from inhand_shape.shape_extraction import extract_shape
     from inhand_shape.shape_parts import decompose
     from inhand_shape.superquadric import fit_least_squares, fit_superquadric
     rng = np.random.default_rng(0)
-    cells, truth_parts, surface = session(name, static, folder, duration, seed, focus_on_handle)
+    cells, truth_parts, surface = session(name, static, folder, duration, seed, focus_on_handle, stereo)
     result = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
                            resolution=cells.lattice.resolution, origin=cells.lattice.origin)
     found = [p.superquadric for p in result.decomposition.parts]
@@ -225,6 +231,9 @@ def main() -> int:
     parser.add_argument('--no-focus', action='store_true',
                         help='the hand explores objects with a handle like any other (no start '
                         'on the handle): how much the graspable part owes to where people start')
+    parser.add_argument('--stereo', action='store_true',
+                        help='touch + one stereo pair: each session also has a pair before the '
+                        'exploration, fused into the map with config/stereo.yaml')
     parser.add_argument('--seeds', type=int, nargs='+', default=[7, 8],
                         help='session seeds (7: the sessions the defaults were chosen on; '
                         'others to report)')
@@ -241,7 +250,7 @@ def main() -> int:
             for name in args.shapes:
                 for mode in args.modes:
                     row = measure(name, mode == 'static', folder, args.duration, seed,
-                                  not args.no_focus)
+                                  not args.no_focus, args.stereo)
                     _print_row(row)
                     rows.append(row)
     for seed in args.seeds:
