@@ -27,7 +27,9 @@ probably is, and how unsure that guess is, the surface is the zero level of a fu
   and Rasmussen 2005) on at most :data:`MAX_INDUCING` inducing points (the observations
   thinned on a grid). Its cost is linear in the observations, and far from every inducing
   point its variance is the prior's: it never claims to know the surface where nothing was
-  measured.
+  measured. The kernel between inducing points and observations (and the mean's) is left
+  out beyond :data:`KERNEL_REACH` length scales, where it is below 1 % of its peak: a few
+  inducing points per observation instead of all of them.
 
 The mean is evaluated on a grid of :attr:`PredictionSettings.grid_step` around the object.
 Where the map has evidence (within surface_mesh's :data:`~inhand_shape.surface_mesh.REACH` of
@@ -342,7 +344,8 @@ class _SparseProcess:
         pairs = self._tree.sparse_distance_matrix(cKDTree(points), reach, output_type='ndarray')
         crowded = np.bincount(pairs['j'], minlength=len(points))[pairs['j']] > KERNEL_NEIGHBOURS
         if crowded.any():
-            # where more are in reach (dense inducing points on a small object), the nearest
+            # where more are in reach (dense inducing points on a small object): the nearest
+            # KERNEL_NEIGHBOURS only, sorted for those points alone
             many = pairs[crowded][np.lexsort((pairs['v'][crowded], pairs['j'][crowded]))]
             rank = np.arange(len(many)) - np.searchsorted(many['j'], many['j'], side='left')
             pairs = np.concatenate([pairs[~crowded], many[rank < KERNEL_NEIGHBOURS]])
