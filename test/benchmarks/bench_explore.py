@@ -268,7 +268,7 @@ def compare(folders: list[Path], specs: list[str]) -> None:
             setattr(implicit, name, type(value)(float(pairs.pop(name))) if name in pairs else value)
         settings = implicit.PredictionSettings(**{k: v if k == 'prior' else float(v)
                                                   for k, v in pairs.items()})
-        scores, within = [], []
+        scores, within, within_one, spread = [], [], [], []
         for (cells, whole), prior in zip(maps, priors):
             surface = implicit.predict_map_surface(
                 cells.centres, cells.probabilities, cells.lattice.resolution, settings,
@@ -278,9 +278,13 @@ def compare(folders: list[Path], specs: list[str]) -> None:
             error, _ = whole.distance(surface.vertices)
             areas = surface.vertex_areas()
             within.append(areas[error <= 2 * surface.vertex_std].sum() / areas.sum())
+            within_one.append(areas[error <= surface.vertex_std].sum() / areas.sum())
+            spread.append((areas * surface.vertex_std).sum() / areas.sum())
+        # within one sigma and the mean std: a std calibrated only by being wide shows here
         print(f'{spec or "(shipped)":45} completed F mean {np.mean(scores):.3f} worst {min(scores):.3f}; '
               f'within 2 sigma worst {min(within):.2f}, >= 0.9 on {sum(w >= 0.9 for w in within)}/'
-              f'{len(within)}', flush=True)
+              f'{len(within)}; within 1 sigma median {np.median(within_one):.2f}, mean std '
+              f'{1000 * np.median(spread):.1f} mm', flush=True)
     for name, value in defaults.items():
         setattr(implicit, name, value)
 

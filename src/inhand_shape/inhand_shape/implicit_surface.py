@@ -39,6 +39,10 @@ what was touched, never bridge a gap the fingers passed over). Its zero level is
 marching cubes (scikit-image), pieces facing inward (hollows) are dropped, and the standard
 deviation of ``f`` is evaluated at every vertex. Because ``f`` is about a distance (slope 1),
 that standard deviation is in metres: how far the true surface may be from the predicted one.
+The process's own cannot exceed ``signal_std``; where only the prior shape stands in for the
+object it may be off by much more, so the reported one adds, in quadrature,
+:attr:`PredictionSettings.extrapolation` times the distance beyond one length scale from the
+nearest touched cell (the next touch's gain uses the process's own: a touch reduces that).
 The defaults and how well they are calibrated: docs/exploration.md.
 """
 
@@ -92,6 +96,7 @@ class PredictionSettings:
     margin: float = 0.01            # m around the prior shape and the cells
     prior: str = 'ellipsoid'        # or 'superquadric'
     prior_reach: float = 0.02       # m: how far past the touched cells the prior may reach
+    extrapolation: float = 0.75     # std added per metre beyond a length scale from the cells
 
     def __post_init__(self) -> None:
         # refused as a node refuses a parameter: by name, with the allowed values
@@ -114,6 +119,10 @@ PREDICTION_PARAMETERS = (
               'prior shape may reach (m): a point farther from them than this plus its depth '
               'inside the shape is outside',
               minimum=0.005, maximum=0.5),
+    ParamSpec('extrapolation', PredictionSettings.extrapolation, 'Standard deviation added to the '
+              'predicted surface per metre of its distance from the nearest touched cell beyond one '
+              'length scale: how far the prior shape may be off where it stands in for the object',
+              minimum=0.0, maximum=5.0),
     ParamSpec('prior', PredictionSettings.prior, 'Shape the surface falls back to where nothing '
               'was touched: the ellipsoid on the cells\' principal axes, or their robust '
               'superquadric fit', choices=('ellipsoid', 'superquadric')),
@@ -354,12 +363,27 @@ class _SparseProcess:
         return np.asarray(self.prior(points, nearest_cell) + g)
 
     def std(self, points: Points) -> Floats:
+        """The process's own standard deviation of f at ``points`` (at most ``signal_std``)."""
         out = np.empty(len(points))
         for start in range(0, len(points), _CHUNK):
             kz = _matern(self.inducing, points[start:start + _CHUNK], self.settings)
             variance = self.settings.signal_std ** 2 - np.einsum('ij,ij->j', kz, self._reduction @ kz)
             out[start:start + _CHUNK] = np.sqrt(np.maximum(variance, 0.0))
         return out
+
+    def total_std(self, points: Points, process_std: Floats | None = None) -> Floats:
+        """The standard deviation of the predicted surface at ``points``: the process's
+        (``process_std`` when already known) and, in quadrature, ``extrapolation`` times the
+        distance beyond one length scale from the nearest touched cell. The process's own
+        cannot exceed ``signal_std``, yet where only the prior shape stands in for the object
+        it may be off by as much as the object is far: on the tuning maps of
+        docs/exploration.md the surface more than 3 cm from every cell was 30-50 mm off with
+        a process std of 1 cm."""
+        own = self.std(points) if process_std is None else process_std
+        if not self.settings.extrapolation or len(points) == 0:
+            return own
+        beyond = np.maximum(self.prior.tree.query(points, workers=-1)[0] - self.settings.length_scale, 0.0)
+        return np.asarray(np.sqrt(own ** 2 + (self.settings.extrapolation * beyond) ** 2))
 
     def covariance(self, a: Points, b: Points) -> Floats:
         """Posterior covariance of f between ``a`` and ``b`` (rows a, columns b)."""
@@ -371,14 +395,16 @@ class _SparseProcess:
 @dataclass(frozen=True, eq=False)
 class PredictedSurface:
     """The completed surface: mesh ``vertices`` (V, 3) m and outward ``faces`` (F, 3), the
-    standard deviation at each vertex ``vertex_std`` (m), the grid points next to the
-    surface ``band_points`` (B, 3) (their standard deviation: :meth:`band_std`), the ``prior``
-    and the process
-    (for the next touch's gain), and the counts it was made from."""
+    standard deviation at each vertex ``vertex_std`` (m: how far the true surface may be,
+    :meth:`_SparseProcess.total_std`) and the process's own part of it ``process_std`` (what
+    a touch can reduce: the next touch's gain), the grid points next to the surface
+    ``band_points`` (B, 3) (their standard deviation: :meth:`band_std`), the ``prior`` and
+    the process, and the counts it was made from."""
 
     vertices: Points
     faces: NDArray[np.int64]
     vertex_std: Floats
+    process_std: Floats
     band_points: Points
     prior: SurfacePrior
     process: _SparseProcess | None
@@ -395,7 +421,7 @@ class PredictedSurface:
         they are more than the vertices, and the viewers draw the vertices)."""
         if self.process is None or len(self.band_points) == 0:
             return np.zeros(len(self.band_points))
-        return self.process.std(self.band_points)
+        return self.process.total_std(self.band_points)
 
     def vertex_areas(self) -> Floats:
         """A third of the area of the triangles around each vertex (m^2)."""
@@ -437,11 +463,9 @@ def predict_surface(cells: ArrayLike, resolution: float, free: ArrayLike | None 
     free_points = np.empty((0, 3)) if free is None else np.asarray(free, dtype=float).reshape(-1, 3)
     if not resolution > 0:
         raise ValueError(f'resolution {resolution}: must be > 0')
-    nothing = np.zeros((0, 3))
     if len(occupied) < MIN_CELLS:
         prior = SurfacePrior(Superquadric(np.full(3, resolution), (1.0, 1.0), np.eye(3), np.zeros(3)))
-        return PredictedSurface(nothing, np.zeros((0, 3), dtype=np.int64), np.zeros(0), nothing,
-                                prior, None, 0, 0, settings)
+        return _no_surface(prior, settings)
     if prior is None and settings.prior == 'superquadric':
         w = np.ones(len(occupied)) if weights is None else np.asarray(weights, dtype=float).ravel()
         prior = SurfacePrior.fitted(occupied, w, resolution)
@@ -474,16 +498,23 @@ def predict_surface(cells: ArrayLike, resolution: float, free: ArrayLike | None 
     # the grid's faces are outside: the surface closes inside the box
     values[[0, -1], :, :] = values[:, [0, -1], :] = values[:, :, [0, -1]] = np.abs(values).max()
     if not values.min() < 0:
-        return PredictedSurface(nothing, np.zeros((0, 3), dtype=np.int64), np.zeros(0), nothing,
-                                prior, process, len(obs.points), len(process.inducing), settings)
+        return _no_surface(prior, settings, process, len(obs.points), len(process.inducing))
     verts, faces, _, _ = marching_cubes(values, 0.0, spacing=(step, step, step),
                                         gradient_direction='descent', allow_degenerate=False)
     vertices, faces = _without_cavities(verts + low, np.asarray(faces, dtype=np.int64))
     band = np.abs(values) <= step
     band_points = grid[band]
-    return PredictedSurface(vertices, np.asarray(faces, dtype=np.int64), process.std(vertices),
-                            band_points, prior, process, len(obs.points),
-                            len(process.inducing), settings)
+    own = process.std(vertices)
+    return PredictedSurface(vertices, np.asarray(faces, dtype=np.int64), process.total_std(vertices, own),
+                            own, band_points, prior, process, len(obs.points), len(process.inducing),
+                            settings)
+
+
+def _no_surface(prior: SurfacePrior, settings: PredictionSettings, process: _SparseProcess | None = None,
+                observations: int = 0, inducing: int = 0) -> PredictedSurface:
+    nothing = np.zeros((0, 3))
+    return PredictedSurface(nothing, np.zeros((0, 3), dtype=np.int64), np.zeros(0), np.zeros(0), nothing,
+                            prior, process, observations, inducing, settings)
 
 
 def predict_map_surface(centres: ArrayLike, probabilities: ArrayLike, resolution: float,

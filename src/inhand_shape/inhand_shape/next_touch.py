@@ -93,7 +93,9 @@ def next_touches(surface: PredictedSurface, resolution: float, count: int = DEFA
     # the thinned points stand for the area around them
     target_area = np.bincount(cKDTree(surface.vertices[targets]).query(surface.vertices)[1], areas,
                               len(targets))
-    variance = surface.vertex_std ** 2
+    # what a touch can reduce is the process's own variance (the extrapolation's part of
+    # the surface's std is the prior shape's error, which the process does not model)
+    variance = surface.process_std ** 2
     total = float((areas * variance).sum())
     noise = surface.settings.noise_std * resolution
     cov = process.covariance(surface.vertices[candidates], surface.vertices[targets])

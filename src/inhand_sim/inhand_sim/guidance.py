@@ -77,7 +77,7 @@ class StrokeGuide:
         surface = self.surface
         if surface is None or surface.empty or len(candidates) == 1:
             return int(candidates[0])
-        weight = surface.vertex_areas() * surface.vertex_std ** 2
+        weight = surface.vertex_areas() * surface.process_std ** 2
         tree = cKDTree(surface.vertices)
         scores = []
         for index in candidates:
