@@ -175,26 +175,19 @@ def _unit_sphere(subdivisions: int) -> tuple[Points, NDArray[np.int64]]:
     return vertices, faces
 
 
-def _log_inside_outside(local: Points, size: ArrayLike, e1: float, e2: float) -> Floats:
-    """log F(x) (module doc) of points in the superquadric's frame, without overflow."""
+def _log_inside_outside(local: Floats, size: ArrayLike, e1: float | Floats, e2: float | Floats) -> Floats:
+    """log F(x) (module doc) of points in the superquadric's frame, without overflow:
+    ``local`` (..., 3), ``size`` (..., 3) and the exponents broadcast against it (the fit's
+    Jacobian evaluates K superquadrics at once: (K, N, 3) with (K, 1, 3) and (K, 1))."""
     logs = np.log(np.maximum(np.abs(local) / np.asarray(size, dtype=float), _TINY))
-    cross_section = (e2 / e1) * np.logaddexp(2 / e2 * logs[:, 0], 2 / e2 * logs[:, 1])
-    return np.asarray(np.logaddexp(cross_section, 2 / e1 * logs[:, 2]))
+    cross_section = (e2 / e1) * np.logaddexp(2 / e2 * logs[..., 0], 2 / e2 * logs[..., 1])
+    return np.asarray(np.logaddexp(cross_section, 2 / e1 * logs[..., 2]))
 
 
-def _radial_distances(local: Floats, sizes: Floats, e1: Floats, e2: Floats) -> Floats:
-    """:func:`radial_distance` of K superquadrics at once: ``local`` (K, N, 3) the points in
-    each one's frame, ``sizes`` (K, 3), exponents ``e1``, ``e2`` (K,); (K, N)."""
-    logs = np.log(np.maximum(np.abs(local) / sizes[:, None, :], _TINY))
-    a, b = (2 / e2)[:, None], (2 / e1)[:, None]
-    cross_section = (e2 / e1)[:, None] * np.logaddexp(a * logs[..., 0], a * logs[..., 1])
-    log_f = np.logaddexp(cross_section, b * logs[..., 2])
-    return np.asarray(np.linalg.norm(local, axis=2) * np.abs(1 - np.exp(-e1[:, None] / 2 * log_f)))
-
-
-def radial_distance(local: Points, size: ArrayLike, e1: float, e2: float) -> Floats:
-    """The radial distance (module doc) of points given in the superquadric's frame."""
-    radius = np.linalg.norm(local, axis=1)
+def radial_distance(local: Floats, size: ArrayLike, e1: float | Floats, e2: float | Floats) -> Floats:
+    """The radial distance (module doc) of points given in the superquadric's frame (shapes
+    as :func:`_log_inside_outside`)."""
+    radius = np.linalg.norm(local, axis=-1)
     return np.asarray(radius * np.abs(1 - np.exp(-e1 / 2 * _log_inside_outside(local, size, e1, e2))))
 
 
@@ -287,7 +280,7 @@ class _Parameters:
             local[k + 1] = offset @ (self.base @ _rotation_matrix(shifted[k + 1, 5:8]))
         # a moved centre: the points shift by the step along that axis, in the frame
         local[9:] = base[None, :, :] - step[8:, None, None] * rotation[None, :, :].transpose(1, 0, 2)
-        d = _radial_distances(local, np.exp(shifted[:, :3]), shifted[:, 3], shifted[:, 4])
+        d = radial_distance(local, np.exp(shifted[:, None, :3]), shifted[:, 3:4], shifted[:, 4:5])
         return np.asarray(scale[:, None] * ((d[1:] - d[0]) / step[:, None]).T)
 
 
