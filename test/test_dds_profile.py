@@ -12,6 +12,7 @@ import pytest
 
 from inhand_common.dds_profile import (
     PROFILES_VARIABLE,
+    PUBLICATION_MODE_VARIABLE,
     SHM_SEGMENT,
     UDP_BUFFER,
     profile_xml,
@@ -106,3 +107,74 @@ def test_camera_images_published_best_effort_arrive_whole_in_another_process():
     finally:
         reader.kill()
     assert out.split()[-1] == str(count), out
+
+
+def test_asynchronous_publication_is_asked_for_only_when_the_user_chose_no_mode(monkeypatch):
+    """occupancy_node's large latched clouds are published asynchronously (dds_profile.py);
+    the mode is the process's while the block runs, and a user's own choice stands."""
+    for name in (PROFILES_VARIABLE, 'FASTDDS_DEFAULT_PROFILES_FILE', 'RMW_IMPLEMENTATION',
+                 PUBLICATION_MODE_VARIABLE):
+        monkeypatch.delenv(name, raising=False)
+    with shipped_profile():
+        assert PUBLICATION_MODE_VARIABLE not in os.environ
+    with shipped_profile(asynchronous=True):
+        assert os.environ[PUBLICATION_MODE_VARIABLE] == 'ASYNCHRONOUS'
+    assert PUBLICATION_MODE_VARIABLE not in os.environ
+    monkeypatch.setenv(PUBLICATION_MODE_VARIABLE, 'SYNCHRONOUS')
+    with shipped_profile(asynchronous=True):
+        assert os.environ[PUBLICATION_MODE_VARIABLE] == 'SYNCHRONOUS'
+    assert os.environ[PUBLICATION_MODE_VARIABLE] == 'SYNCHRONOUS'
+    from inhand_mapping.nodes.occupancy_node import ASYNCHRONOUS_PUBLISHING
+    assert ASYNCHRONOUS_PUBLISHING
+
+
+LATCHED_CHILD = '''
+import sys, time
+import rclpy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import UInt8MultiArray
+from inhand_common.dds_profile import shipped_profile
+qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+role = sys.argv[1]
+with shipped_profile(asynchronous=role == 'writer'):
+    rclpy.init()
+    node = rclpy.create_node('latched_' + role)
+    if role == 'writer':
+        publisher = node.create_publisher(UInt8MultiArray, 'occupancy/cloud', qos)
+        for k in range(3):      # the last of three 8.2 MB maps, kept for a late reader
+            publisher.publish(UInt8MultiArray(data=bytes([k]) * 8_232_000))
+        print('published', flush=True)
+        sys.stdin.readline()    # until the reader is done
+    else:
+        got = []
+        node.create_subscription(UInt8MultiArray, 'occupancy/cloud',
+                                 lambda m: got.append((len(m.data), m.data[0])), qos)
+        deadline = time.monotonic() + 30
+        while not got and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        print('received', got, flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+'''
+
+
+@pytest.mark.dds
+def test_an_asynchronous_writer_keeps_its_latest_large_message_for_a_late_reader():
+    """The occupancy node's mode: a reader that starts after the map was published gets
+    the latest map whole (transient local), through the asynchronous writer's thread."""
+    env = {key: value for key, value in os.environ.items()
+           if key not in (PROFILES_VARIABLE, 'FASTDDS_DEFAULT_PROFILES_FILE',
+                          PUBLICATION_MODE_VARIABLE)}
+    env['ROS_DOMAIN_ID'] = str(100 + (os.getpid() + 50) % 100)
+    writer = subprocess.Popen([sys.executable, '-c', LATCHED_CHILD, 'writer'], env=env,
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert writer.stdout.readline().strip() == 'published'
+        reader = subprocess.run([sys.executable, '-c', LATCHED_CHILD, 'reader'], env=env,
+                                capture_output=True, text=True, timeout=60)
+        assert reader.returncode == 0, reader.stderr
+        assert reader.stdout.split('\n')[0] == 'received [(8232000, 2)]', reader.stdout
+    finally:
+        writer.communicate('done\n', timeout=30)
+        writer.kill()

@@ -427,9 +427,10 @@ def bench_publish(repeats: int) -> tuple[bool, bool, bool]:
     grid = full_grid()
     n = grid.spec.cells_per_axis
     assert grid.touched_mask().all()
+    mode = os.environ.get('RMW_FASTRTPS_PUBLICATION_MODE', 'SYNCHRONOUS (the default)')
     say(f'{n}^3 = {n ** 3:,} cells, all touched; occupied_threshold {threshold:g} '
         f'(config/mapping.yaml); domain {os.environ["ROS_DOMAIN_ID"]}; {repeats} repeats per '
-        f'figure')
+        f'figure; publication mode {mode}, as occupancy_node')
     sec, nanosec = 1_700_000_000, 123_456_789
     stamp = Time(sec=sec, nanosec=nanosec)
     products = MapProducts(grid, threshold)
@@ -768,13 +769,14 @@ def _main() -> int:
 
 
 def main() -> int:
-    """As every node of the graph runs (node_runner.py): freed memory kept for the next
-    message, the graph's Fast DDS profile (the map's 8.2 MB cloud through shared memory);
-    the subscriber process too."""
+    """As the occupancy node runs (node_runner.py): freed memory kept for the next message,
+    the graph's Fast DDS profile (the map's 8.2 MB cloud through shared memory) and its
+    publication mode (asynchronous); the subscriber process too."""
     from inhand_common.dds_profile import shipped_profile
     from inhand_common.heap_reuse import reuse_freed_memory
+    from inhand_mapping.nodes.occupancy_node import ASYNCHRONOUS_PUBLISHING
     reuse_freed_memory()
-    with shipped_profile():
+    with shipped_profile(asynchronous=ASYNCHRONOUS_PUBLISHING):
         return _main()
 
 

@@ -45,10 +45,13 @@ def _parameter_files(argv: Sequence[str]) -> list[str]:
 
 
 def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | None = None,
-             executor_factory: Callable[[], object] = SingleThreadedExecutor) -> int:
+             executor_factory: Callable[[], object] = SingleThreadedExecutor,
+             asynchronous_publishing: bool = False) -> int:
     """Create the node with ``make_node`` and spin it until shutdown; returns an exit code.
 
-    ``name`` prefixes the message printed when parameters are refused.
+    ``name`` prefixes the message printed when parameters are refused;
+    ``asynchronous_publishing`` for a node whose messages are large and latched
+    (dds_profile.py).
     """
     single_threaded_blas()
     reuse_freed_memory()
@@ -59,7 +62,8 @@ def run_node(name: str, make_node: Callable[[], Node], args: Sequence[str] | Non
     except ParameterError as error:
         print(f'{name}: {error.problems[0]}', file=sys.stderr)
         return EXIT_BAD_PARAMETERS
-    with shipped_profile():     # large images arrive, also best effort (dds_profile.py)
+    # large images arrive, also best effort (dds_profile.py)
+    with shipped_profile(asynchronous=asynchronous_publishing):
         return _spin(name, make_node, argv, executor_factory)
 
 
