@@ -45,6 +45,16 @@ def _compiled(function: _Function) -> _Function:
     return cast(_Function, numba.njit(cache=True, nogil=True)(function))
 
 
+def _uncounted(function: _Function) -> _Function:
+    """``_compiled`` without numba's reference counting (its ``_nrt=False`` option, which
+    numba's own string helpers use for the same reason): for kernels that index the arrays
+    they are given and allocate none (an allocation does not compile). Counted, every
+    array bound to a name (a field of a state tuple handed to an inlined step, a row view)
+    is an atomic increment and decrement: in the path model, about a hundred per sample,
+    four fifths of its time (perf: NRT_incref and NRT_decref)."""
+    return cast(_Function, numba.njit(cache=True, nogil=True, _nrt=False)(function))
+
+
 def _inlined(function: _Function) -> _Function:
     """A per-sample step of a kernel, compiled into it (numba inlines it in its own IR): as
     separately compiled functions they stay calls, and neighbourhood 1 runs at a third of

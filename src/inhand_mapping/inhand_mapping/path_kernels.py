@@ -11,6 +11,14 @@ dropped a reference on every array of the state tuples it was passed, about 30% 
 time (perf); inlined, ``bench_mapping``'s fingertip stream runs 1.3x faster, the map the
 same to the bit, for 8 s more of compiling on a cold cache (``compile_kernels``).
 
+Inlined, they still took those references: numba binds each argument to a name of the
+inlined body, and a state tuple bound is an atomic increment (and later decrement) of every
+array in it, about a hundred per sample, four fifths of the time (perf). The kernels
+therefore run without reference counting (``_uncounted``): they allocate nothing, the
+steps pass positions as scalars rather than (3,) arrays or row views, and every array they
+index belongs to the caller for the whole call. ``bench_mapping``'s stream runs 5x faster,
+the map the same to the bit.
+
 The stream is processed sample by sample, in the order given, and every decision (a
 sample's speed is settled, a track has ended, a visit is new) is taken at a sample of the
 stream, never at the end of a call: the map therefore does not depend on how the stream was
@@ -28,9 +36,9 @@ from inhand_common.array_types import CellFloats, FingerIds, Floats, Indices, Po
 from inhand_mapping.occupancy_kernels import (
     CellArrays,
     GridGeometry,
-    _compiled,
     _inlined,
     _refresh_probability,
+    _uncounted,
 )
 
 __all__ = ['PathCounts', 'PathModel', 'PathTracks', 'PathVisits', 'add_points', 'end_tracks',
@@ -114,7 +122,7 @@ def _clamp(value: float, low: float, high: float) -> float:
     return min(max(value, low), high)
 
 
-@_compiled
+@_uncounted
 def push_samples(points: Points, times: Times, fingers: FingerIds, geometry: GridGeometry,
                  model: PathModel, cells: CellArrays, evidence: CellFloats, tracks: PathTracks,
                  visits: PathVisits, counts: PathCounts, changed: Indices
@@ -180,7 +188,7 @@ def push_samples(points: Points, times: Times, fingers: FingerIds, geometry: Gri
     return integrated, outside, invalid, earliest
 
 
-@_compiled
+@_uncounted
 def end_tracks(geometry: GridGeometry, model: PathModel, cells: CellArrays,
                evidence: CellFloats, tracks: PathTracks, visits: PathVisits,
                counts: PathCounts, changed: Indices) -> float:
@@ -196,7 +204,7 @@ def end_tracks(geometry: GridGeometry, model: PathModel, cells: CellArrays,
     return earliest
 
 
-@_compiled
+@_uncounted
 def add_points(points: Points, geometry: GridGeometry, model: PathModel, cells: CellArrays,
                evidence: CellFloats, counts: PathCounts, changed: Indices
                ) -> tuple[int, int, int]:
@@ -235,25 +243,29 @@ def _advance(f: int, final: bool, geometry: GridGeometry, model: PathModel, cell
     """Settle what finger ``f``'s samples now allow (everything if ``final``: its track has
     ended), and walk the path to each sample whose context speed is settled."""
     count = tracks.held[f]
-    t = tracks.t[f]
-    newest = t[count - 1]
+    t = tracks.t
+    newest = t[f, count - 1]
     window, context = model.speed_window, model.speed_context
     # A sample's velocity needs the samples within +- window and at least one on each side.
     k = tracks.known[f]
-    while k < count and (final or (newest > t[k] + window and k + 1 < count)):
-        tracks.speed[f, k] = _fit(t, tracks.p[f], k, count, window, tracks.smooth[f, k])
+    while k < count and (final or (newest > t[f, k] + window and k + 1 < count)):
+        speed, sx, sy, sz = _fit(tracks, f, k, count, window)
+        tracks.speed[f, k] = speed
+        tracks.smooth[f, k, 0] = sx
+        tracks.smooth[f, k, 1] = sy
+        tracks.smooth[f, k, 2] = sz
         k += 1
     tracks.known[f] = k
     # Its context speed needs the speeds within +- context.
     w = tracks.walked[f]
-    while w < count and (final or newest > t[w] + context + window):
+    while w < count and (final or newest > t[f, w] + context + window):
         fastest = 0.0
         j = w
-        while j >= 0 and t[j] >= t[w] - context:
+        while j >= 0 and t[f, j] >= t[f, w] - context:
             fastest = max(fastest, tracks.speed[f, j])
             j -= 1
         j = w + 1
-        while j < count and t[j] <= t[w] + context:
+        while j < count and t[f, j] <= t[f, w] + context:
             fastest = max(fastest, tracks.speed[f, j])
             j += 1
         tracks.context[f, w] = fastest
@@ -266,45 +278,52 @@ def _advance(f: int, final: bool, geometry: GridGeometry, model: PathModel, cell
 
 
 @_inlined
-def _fit(t: Floats, p: Floats, k: int, count: int, window: float, smooth: Floats) -> float:
-    """|velocity| at sample k, and its position on the line in ``smooth`` (3,): the
+def _fit(tracks: PathTracks, f: int, k: int, count: int, window: float
+         ) -> tuple[float, float, float, float]:
+    """|velocity| at sample k of finger ``f``, and its position (x, y, z) on the line: the
     least-squares line through the samples within +- window of it, and at least its two
-    neighbours (a single 240 Hz step would turn 1 mm of tracker noise into 0.24 m/s)."""
+    neighbours (a single 240 Hz step would turn 1 mm of tracker noise into 0.24 m/s).
+
+    Scalars rather than (3,) arrays and row views: each array or view is a reference the
+    compiled code counts (atomic increments and decrements), which made up most of the
+    model's time. The sums are the same, in the same order."""
+    t, p = tracks.t, tracks.p
     lo = k
-    while lo > 0 and t[lo - 1] >= t[k] - window:
+    while lo > 0 and t[f, lo - 1] >= t[f, k] - window:
         lo -= 1
     lo = max(0, min(lo, k - 1))
     hi = k
-    while hi + 1 < count and t[hi + 1] <= t[k] + window:
+    while hi + 1 < count and t[f, hi + 1] <= t[f, k] + window:
         hi += 1
     hi = min(count - 1, max(hi, k + 1))
     m = hi - lo + 1
     mean_t = 0.0
-    mean_p = np.zeros(3)
+    mean_x = mean_y = mean_z = 0.0
     for j in range(lo, hi + 1):
-        mean_t += t[j]
-        for a in range(3):
-            mean_p[a] += p[j, a]
+        mean_t += t[f, j]
+        mean_x += p[f, j, 0]
+        mean_y += p[f, j, 1]
+        mean_z += p[f, j, 2]
     mean_t /= m
-    for a in range(3):
-        mean_p[a] /= m
+    mean_x /= m
+    mean_y /= m
+    mean_z /= m
     var = 0.0
-    cov = np.zeros(3)
+    cov_x = cov_y = cov_z = 0.0
     for j in range(lo, hi + 1):
-        dt = t[j] - mean_t
+        dt = t[f, j] - mean_t
         var += dt * dt
-        for a in range(3):
-            cov[a] += dt * (p[j, a] - mean_p[a])
+        cov_x += dt * (p[f, j, 0] - mean_x)
+        cov_y += dt * (p[f, j, 1] - mean_y)
+        cov_z += dt * (p[f, j, 2] - mean_z)
     if not var > 0.0:
-        for a in range(3):
-            smooth[a] = mean_p[a]
-        return 0.0
-    for a in range(3):
-        smooth[a] = mean_p[a] + cov[a] / var * (t[k] - mean_t)
-    return math.sqrt(cov[0] ** 2 + cov[1] ** 2 + cov[2] ** 2) / var
+        return 0.0, mean_x, mean_y, mean_z
+    at = t[f, k] - mean_t
+    return (math.sqrt(cov_x ** 2 + cov_y ** 2 + cov_z ** 2) / var,
+            mean_x + cov_x / var * at, mean_y + cov_y / var * at, mean_z + cov_z / var * at)
 
 
-@_compiled
+@_uncounted
 def _compact(f: int, model: PathModel, tracks: PathTracks) -> bool:
     """Drop the oldest samples of finger ``f``'s full buffer that nothing still needs;
     False if none can go."""
@@ -337,7 +356,7 @@ def _compact(f: int, model: PathModel, tracks: PathTracks) -> bool:
     return True
 
 
-@_compiled
+@_uncounted
 def _end_track(f: int, geometry: GridGeometry, model: PathModel, cells: CellArrays,
                evidence: CellFloats, tracks: PathTracks, visits: PathVisits,
                counts: PathCounts, changed: Indices, earliest: float, n_changed: int
@@ -364,29 +383,25 @@ def _walk(f: int, a: int, b: int, geometry: GridGeometry, model: PathModel, cell
     ta, tb = tracks.t[f, a], tracks.t[f, b]
     ca, cb = tracks.context[f, a], tracks.context[f, b]
     va, vb = tracks.speed[f, a], tracks.speed[f, b]
-    d = np.empty(3)
-    ds = np.empty(3)
-    chord2 = 0.0
-    smooth2 = 0.0
-    for axis in range(3):
-        d[axis] = tracks.p[f, b, axis] - tracks.p[f, a, axis]
-        ds[axis] = tracks.smooth[f, b, axis] - tracks.smooth[f, a, axis]
-        chord2 += d[axis] ** 2
-        smooth2 += ds[axis] ** 2
+    # Scalars, not (3,) arrays: see _fit.
+    pax, pay, paz = tracks.p[f, a, 0], tracks.p[f, a, 1], tracks.p[f, a, 2]
+    sax, say, saz = tracks.smooth[f, a, 0], tracks.smooth[f, a, 1], tracks.smooth[f, a, 2]
+    dx, dy, dz = tracks.p[f, b, 0] - pax, tracks.p[f, b, 1] - pay, tracks.p[f, b, 2] - paz
+    dsx = tracks.smooth[f, b, 0] - sax
+    dsy = tracks.smooth[f, b, 1] - say
+    dsz = tracks.smooth[f, b, 2] - saz
+    chord2 = 0.0 + dx ** 2 + dy ** 2 + dz ** 2
+    smooth2 = 0.0 + dsx ** 2 + dsy ** 2 + dsz ** 2
     steps = max(1, min(model.max_steps, int(math.ceil(math.sqrt(chord2) / model.step))))
     duration = (tb - ta) / steps
     length = math.sqrt(smooth2) / steps
-    pos = np.empty(3)
-    smooth = np.empty(3)
     for s in range(steps):
         frac = (s + 0.5) / steps
-        for axis in range(3):
-            pos[axis] = tracks.p[f, a, axis] + frac * d[axis]
-            smooth[axis] = tracks.smooth[f, a, axis] + frac * ds[axis]
-        _follow_stay(f, smooth, model, visits)
-        x = (pos[0] - origin[0]) * inv_res
-        y = (pos[1] - origin[1]) * inv_res
-        z = (pos[2] - origin[2]) * inv_res
+        smooth_x, smooth_y, smooth_z = sax + frac * dsx, say + frac * dsy, saz + frac * dsz
+        _follow_stay(f, smooth_x, smooth_y, smooth_z, model, visits)
+        x = (pax + frac * dx - origin[0]) * inv_res
+        y = (pay + frac * dy - origin[1]) * inv_res
+        z = (paz + frac * dz - origin[2]) * inv_res
         if x < 0.0 or y < 0.0 or z < 0.0 or x >= n or y >= n or z >= n:
             visits.current[f] = -1
             continue
@@ -398,8 +413,8 @@ def _walk(f: int, a: int, b: int, geometry: GridGeometry, model: PathModel, cell
         context = ca + frac * (cb - ca)
         slide = (1.0 if context <= model.transit_speed
                  else (model.transit_speed / context) ** model.transit_falloff)
-        delta = _visit_step(f, c, smooth, length, time, duration, slide,
-                            va + frac * (vb - va), geometry, model, visits, counts)
+        delta = _visit_step(f, c, smooth_x, smooth_y, smooth_z, length, time, duration,
+                            slide, va + frac * (vb - va), geometry, model, visits, counts)
         n_changed = _add_evidence(c, delta, model, cells, evidence, changed, n_changed, n)
         _mark_dirty(c, counts)
     return earliest, n_changed
@@ -434,25 +449,26 @@ def _add_evidence(c: int, delta: float, model: PathModel, cells: CellArrays,
 
 # ---------------------------------------------------------------------------- visits
 @_inlined
-def _visit_step(f: int, c: int, smooth: Floats, length: float, time: float, duration: float,
-                slide: float, speed: float, geometry: GridGeometry, model: PathModel,
-                visits: PathVisits, counts: PathCounts) -> float:
+def _visit_step(f: int, c: int, smooth_x: float, smooth_y: float, smooth_z: float,
+                length: float, time: float, duration: float, slide: float, speed: float,
+                geometry: GridGeometry, model: PathModel, visits: PathVisits,
+                counts: PathCounts) -> float:
     """One step of finger ``f`` in cell ``c`` (``duration`` s at slide factor ``slide`` and
-    fitted ``speed``, centred at ``smooth`` on the smoothed path and ``length`` m long
+    fitted ``speed``, centred at ``smooth_*`` on the smoothed path and ``length`` m long
     there): its visit of the cell grows by the step and its worth is recomputed. Returns
     the change of the visit's worth."""
     r = visits.current[f]
     if r < 0 or visits.cell[f, r] != c:
-        r = _enter(f, c, smooth, time, model, visits, counts)
+        r = _enter(f, c, smooth_x, smooth_y, smooth_z, time, model, visits, counts)
         visits.current[f] = r
     visits.last[f, r] = time
     visits.stay[f, r] = visits.stay_id[f]
     visits.dwell[f, r] += duration
     visits.g_dwell[f, r] += slide * duration
     visits.v_dwell[f, r] += speed * duration
-    moved2 = 0.0
-    for axis in range(3):
-        moved2 += (smooth[axis] - visits.pass_entry[f, r, axis]) ** 2
+    moved2 = (0.0 + (smooth_x - visits.pass_entry[f, r, 0]) ** 2
+              + (smooth_y - visits.pass_entry[f, r, 1]) ** 2
+              + (smooth_z - visits.pass_entry[f, r, 2]) ** 2)
     # From the start of the pass's first step to the end of this one (a pass that comes
     # back out where it went in is not through); a crossing seen to within a step (steps
     # fall anywhere along the path) is a crossing.
@@ -472,8 +488,8 @@ def _visit_step(f: int, c: int, smooth: Floats, length: float, time: float, dura
 
 
 @_inlined
-def _enter(f: int, c: int, smooth: Floats, time: float, model: PathModel, visits: PathVisits,
-           counts: PathCounts) -> int:
+def _enter(f: int, c: int, smooth_x: float, smooth_y: float, smooth_z: float, time: float,
+           model: PathModel, visits: PathVisits, counts: PathCounts) -> int:
     """Finger ``f`` enters cell ``c``: its visit of the last ``visit_gap`` seconds or of its
     current stay, moved to the front of the ring, or a new one. Returns its slot."""
     ring = visits.cell.shape[1]
@@ -514,27 +530,29 @@ def _enter(f: int, c: int, smooth: Floats, time: float, model: PathModel, visits
         # A new pass through the cell: the last one is over.
         visits.through[f, new] = max(visits.through[f, new], visits.pass_through[f, new])
         visits.pass_through[f, new] = 0.0
-        for axis in range(3):
-            visits.pass_entry[f, new, axis] = smooth[axis]
+        visits.pass_entry[f, new, 0] = smooth_x
+        visits.pass_entry[f, new, 1] = smooth_y
+        visits.pass_entry[f, new, 2] = smooth_z
     visits.cell[f, new] = c
     visits.head[f] = head + 1
     return int(new)
 
 
 @_inlined
-def _follow_stay(f: int, pos: Floats, model: PathModel, visits: PathVisits) -> None:
-    """A finger that moves farther than ``stay_radius`` from where its stay began is at a
-    new place: its stay starts there."""
-    d2 = 0.0
-    for axis in range(3):
-        d2 += (pos[axis] - visits.anchor[f, axis]) ** 2
+def _follow_stay(f: int, x: float, y: float, z: float, model: PathModel,
+                 visits: PathVisits) -> None:
+    """A finger that moves farther than ``stay_radius`` from where its stay began (at
+    (x, y, z)) is at a new place: its stay starts there."""
+    d2 = (0.0 + (x - visits.anchor[f, 0]) ** 2 + (y - visits.anchor[f, 1]) ** 2
+          + (z - visits.anchor[f, 2]) ** 2)
     if not d2 <= model.stay_radius ** 2:     # NaN anchor: the first step
         visits.stay_id[f] += 1
-        for axis in range(3):
-            visits.anchor[f, axis] = pos[axis]
+        visits.anchor[f, 0] = x
+        visits.anchor[f, 1] = y
+        visits.anchor[f, 2] = z
 
 
-@_compiled
+@_uncounted
 def _forget_visits(f: int, visits: PathVisits) -> None:
     """A new stream for finger ``f``: none of its visits can be continued."""
     visits.cell[f, :] = -1
