@@ -77,6 +77,11 @@ class PathTracks(NamedTuple):
     speed: Floats      # (F, B) |velocity| of the local fit, m/s, once settled
     smooth: Floats     # (F, B, 3) the local fit's position at the sample, once settled
     context: Floats    # (F, B) fastest speed within +- speed_context, once settled
+    peaks: Indices     # (F, B) the samples of the context window that no later one of it is
+                       # as fast as, in order (their speeds fall): the first is the fastest
+    peaks_from: Indices  # (F,) where they start in ``peaks``
+    peaks_to: Indices  # (F,) where they end
+    entered: Indices   # (F,) leading samples that have entered the context window
     held: Indices      # (F,) samples in the buffer; 0: no open track
     known: Indices     # (F,) leading samples whose speed is settled
     walked: Indices    # (F,) leading samples whose context is settled and path walked to
@@ -256,19 +261,29 @@ def _advance(f: int, final: bool, geometry: GridGeometry, model: PathModel, cell
         tracks.smooth[f, k, 2] = sz
         k += 1
     tracks.known[f] = k
-    # Its context speed needs the speeds within +- context.
+    # Its context speed needs the speeds within +- context: the fastest of the window,
+    # which slides along the track, is kept as it slides (a monotonic queue, ``peaks``)
+    # rather than found again among the 2 x 0.25 s of samples of every step (a quarter of
+    # the time). The window is the samples with times in [t - context, t + context] (the
+    # times of a track never fall), and its maximum the same value however it is found.
     w = tracks.walked[f]
     while w < count and (final or newest > t[f, w] + context + window):
-        fastest = 0.0
-        j = w
-        while j >= 0 and t[f, j] >= t[f, w] - context:
-            fastest = max(fastest, tracks.speed[f, j])
-            j -= 1
-        j = w + 1
+        j = tracks.entered[f]
         while j < count and t[f, j] <= t[f, w] + context:
-            fastest = max(fastest, tracks.speed[f, j])
+            last = tracks.peaks_to[f]
+            while last > tracks.peaks_from[f] and \
+                    tracks.speed[f, tracks.peaks[f, last - 1]] <= tracks.speed[f, j]:
+                last -= 1      # never the fastest again: j is as fast and stays longer
+            tracks.peaks[f, last] = j
+            tracks.peaks_to[f] = last + 1
             j += 1
-        tracks.context[f, w] = fastest
+        tracks.entered[f] = j
+        first = tracks.peaks_from[f]
+        while first < tracks.peaks_to[f] - 1 and \
+                tracks.t[f, tracks.peaks[f, first]] < t[f, w] - context:
+            first += 1         # left the window
+        tracks.peaks_from[f] = first
+        tracks.context[f, w] = max(0.0, tracks.speed[f, tracks.peaks[f, first]])
         if w > 0:
             earliest, n_changed = _walk(f, w - 1, w, geometry, model, cells, evidence, tracks,
                                         visits, counts, changed, earliest, n_changed)
@@ -343,6 +358,15 @@ def _compact(f: int, model: PathModel, tracks: PathTracks) -> bool:
     if keep <= 0:
         return False
     count = tracks.held[f]
+    # The context window's queue (samples in order): those dropped leave it, the others move.
+    size = 0
+    for q in range(tracks.peaks_from[f], tracks.peaks_to[f]):
+        if tracks.peaks[f, q] >= keep:
+            tracks.peaks[f, size] = tracks.peaks[f, q] - keep
+            size += 1
+    tracks.peaks_from[f] = 0
+    tracks.peaks_to[f] = size
+    tracks.entered[f] -= keep
     for j in range(keep, count):
         tracks.t[f, j - keep] = tracks.t[f, j]
         tracks.speed[f, j - keep] = tracks.speed[f, j]
@@ -367,6 +391,9 @@ def _end_track(f: int, geometry: GridGeometry, model: PathModel, cells: CellArra
     tracks.held[f] = 0
     tracks.known[f] = 0
     tracks.walked[f] = 0
+    tracks.entered[f] = 0
+    tracks.peaks_from[f] = 0
+    tracks.peaks_to[f] = 0
     visits.current[f] = -1
     return earliest, n_changed
 
@@ -494,16 +521,17 @@ def _enter(f: int, c: int, smooth_x: float, smooth_y: float, smooth_z: float, ti
     current stay, moved to the front of the ring, or a new one. Returns its slot."""
     ring = visits.cell.shape[1]
     head = visits.head[f]
+    new = head % ring
     found = -1
-    for back in range(1, min(head, ring) + 1):
-        slot = (head - back) % ring
+    slot = new
+    for _ in range(min(head, ring)):
+        slot = slot - 1 if slot > 0 else ring - 1      # (head - back) % ring: no division
         if visits.last[f, slot] < time - model.visit_gap and \
                 visits.stay[f, slot] != visits.stay_id[f]:
             break                     # this one and all older ones are over
         if visits.cell[f, slot] == c:
             found = slot
             break
-    new = head % ring
     if found < 0 and visits.cell[f, new] >= 0 and (
             visits.last[f, new] >= time - model.visit_gap
             or visits.stay[f, new] == visits.stay_id[f]):
