@@ -14,9 +14,9 @@ same to the bit, for 8 s more of compiling on a cold cache (``compile_kernels``)
 Inlined, they still took those references: numba binds each argument to a name of the
 inlined body, and a state tuple bound is an atomic increment (and later decrement) of every
 array in it, about a hundred per sample, four fifths of the time (perf). The kernels
-therefore run without reference counting (``_uncounted``): they allocate nothing, the
-steps pass positions as scalars rather than (3,) arrays or row views, and every array they
-index belongs to the caller for the whole call. ``bench_mapping``'s stream runs 5x faster,
+therefore run without reference counting (``_uncounted``): they allocate nothing (the
+steps pass positions as scalars rather than (3,) arrays), and every array they index, or
+view, belongs to the caller for the whole call. ``bench_mapping``'s stream runs 5x faster,
 the map the same to the bit.
 
 The stream is processed sample by sample, in the order given, and every decision (a
@@ -299,26 +299,26 @@ def _fit(tracks: PathTracks, f: int, k: int, count: int, window: float
     least-squares line through the samples within +- window of it, and at least its two
     neighbours (a single 240 Hz step would turn 1 mm of tracker noise into 0.24 m/s).
 
-    Scalars rather than (3,) arrays and row views: each array or view is a reference the
-    compiled code counts (atomic increments and decrements), which made up most of the
-    model's time. The sums are the same, in the same order."""
-    t, p = tracks.t, tracks.p
+    Scalars rather than (3,) arrays: the kernels allocate nothing (``_uncounted``). The
+    finger's rows are views (free without reference counting), so the loops index one
+    dimension less. The sums are the same, in the same order."""
+    t, p = tracks.t[f], tracks.p[f]
     lo = k
-    while lo > 0 and t[f, lo - 1] >= t[f, k] - window:
+    while lo > 0 and t[lo - 1] >= t[k] - window:
         lo -= 1
     lo = max(0, min(lo, k - 1))
     hi = k
-    while hi + 1 < count and t[f, hi + 1] <= t[f, k] + window:
+    while hi + 1 < count and t[hi + 1] <= t[k] + window:
         hi += 1
     hi = min(count - 1, max(hi, k + 1))
     m = hi - lo + 1
     mean_t = 0.0
     mean_x = mean_y = mean_z = 0.0
     for j in range(lo, hi + 1):
-        mean_t += t[f, j]
-        mean_x += p[f, j, 0]
-        mean_y += p[f, j, 1]
-        mean_z += p[f, j, 2]
+        mean_t += t[j]
+        mean_x += p[j, 0]
+        mean_y += p[j, 1]
+        mean_z += p[j, 2]
     mean_t /= m
     mean_x /= m
     mean_y /= m
@@ -326,14 +326,14 @@ def _fit(tracks: PathTracks, f: int, k: int, count: int, window: float
     var = 0.0
     cov_x = cov_y = cov_z = 0.0
     for j in range(lo, hi + 1):
-        dt = t[f, j] - mean_t
+        dt = t[j] - mean_t
         var += dt * dt
-        cov_x += dt * (p[f, j, 0] - mean_x)
-        cov_y += dt * (p[f, j, 1] - mean_y)
-        cov_z += dt * (p[f, j, 2] - mean_z)
+        cov_x += dt * (p[j, 0] - mean_x)
+        cov_y += dt * (p[j, 1] - mean_y)
+        cov_z += dt * (p[j, 2] - mean_z)
     if not var > 0.0:
         return 0.0, mean_x, mean_y, mean_z
-    at = t[f, k] - mean_t
+    at = t[k] - mean_t
     return (math.sqrt(cov_x ** 2 + cov_y ** 2 + cov_z ** 2) / var,
             mean_x + cov_x / var * at, mean_y + cov_y / var * at, mean_z + cov_z / var * at)
 
@@ -524,12 +524,13 @@ def _enter(f: int, c: int, smooth_x: float, smooth_y: float, smooth_z: float, ti
     new = head % ring
     found = -1
     slot = new
+    # The finger's rows (views: free without reference counting), one index less per slot.
+    last, stay, cell, stay_id = visits.last[f], visits.stay[f], visits.cell[f], visits.stay_id[f]
     for _ in range(min(head, ring)):
         slot = slot - 1 if slot > 0 else ring - 1      # (head - back) % ring: no division
-        if visits.last[f, slot] < time - model.visit_gap and \
-                visits.stay[f, slot] != visits.stay_id[f]:
+        if last[slot] < time - model.visit_gap and stay[slot] != stay_id:
             break                     # this one and all older ones are over
-        if visits.cell[f, slot] == c:
+        if cell[slot] == c:
             found = slot
             break
     if found < 0 and visits.cell[f, new] >= 0 and (
