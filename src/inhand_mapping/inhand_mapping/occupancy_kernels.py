@@ -52,7 +52,9 @@ def _uncounted(function: _Function) -> _Function:
     array bound to a name (a field of a state tuple handed to an inlined step, a row view)
     is an atomic increment and decrement: in the path model, about a hundred per sample,
     four fifths of its time (perf: NRT_incref and NRT_decref)."""
-    return cast(_Function, numba.njit(cache=True, nogil=True, _nrt=False)(function))
+    # _nrt is a flag of numba's compiler, not in its type stubs' signature of njit
+    return cast(_Function, numba.njit(cache=True, nogil=True, _nrt=False)(  # type: ignore[call-overload]
+        function))
 
 
 def _inlined(function: _Function) -> _Function:

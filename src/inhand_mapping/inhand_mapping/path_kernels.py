@@ -82,6 +82,8 @@ class PathTracks(NamedTuple):
     peaks_from: Indices  # (F,) where they start in ``peaks``
     peaks_to: Indices  # (F,) where they end
     entered: Indices   # (F,) leading samples that have entered the context window
+    fit_lo: Indices    # (F,) the last fit's window, its first sample
+    fit_hi: Indices    # (F,) and its last (before the two neighbours are added)
     held: Indices      # (F,) samples in the buffer; 0: no open track
     known: Indices     # (F,) leading samples whose speed is settled
     walked: Indices    # (F,) leading samples whose context is settled and path walked to
@@ -303,13 +305,19 @@ def _fit(tracks: PathTracks, f: int, k: int, count: int, window: float
     finger's rows are views (free without reference counting), so the loops index one
     dimension less. The sums are the same, in the same order."""
     t, p = tracks.t[f], tracks.p[f]
-    lo = k
-    while lo > 0 and t[lo - 1] >= t[k] - window:
-        lo -= 1
-    lo = max(0, min(lo, k - 1))
-    hi = k
+    # The window's ends only move forwards as k does (a track's times never fall): each
+    # starts where the previous fit's stopped (``fit_lo``, ``fit_hi``) instead of searching
+    # out from k again (2 x 24 steps at 240 Hz). The first sample at or after t[k] - window,
+    # and the last at or before t[k] + window: the ends a search out from k finds.
+    lo = tracks.fit_lo[f]
+    while t[lo] < t[k] - window:
+        lo += 1
+    tracks.fit_lo[f] = lo
+    hi = max(tracks.fit_hi[f], k)
     while hi + 1 < count and t[hi + 1] <= t[k] + window:
         hi += 1
+    tracks.fit_hi[f] = hi
+    lo = max(0, min(lo, k - 1))
     hi = min(count - 1, max(hi, k + 1))
     m = hi - lo + 1
     mean_t = 0.0
@@ -367,6 +375,8 @@ def _compact(f: int, model: PathModel, tracks: PathTracks) -> bool:
     tracks.peaks_from[f] = 0
     tracks.peaks_to[f] = size
     tracks.entered[f] -= keep
+    tracks.fit_lo[f] = max(0, tracks.fit_lo[f] - keep)   # the next fit's window is all kept
+    tracks.fit_hi[f] = max(0, tracks.fit_hi[f] - keep)
     for j in range(keep, count):
         tracks.t[f, j - keep] = tracks.t[f, j]
         tracks.speed[f, j - keep] = tracks.speed[f, j]
@@ -392,6 +402,8 @@ def _end_track(f: int, geometry: GridGeometry, model: PathModel, cells: CellArra
     tracks.known[f] = 0
     tracks.walked[f] = 0
     tracks.entered[f] = 0
+    tracks.fit_lo[f] = 0
+    tracks.fit_hi[f] = 0
     tracks.peaks_from[f] = 0
     tracks.peaks_to[f] = 0
     visits.current[f] = -1

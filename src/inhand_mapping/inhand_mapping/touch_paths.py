@@ -232,7 +232,8 @@ class TouchPaths:
             speed=np.zeros((fingers, held)), smooth=np.zeros((fingers, held, 3)),
             context=np.zeros((fingers, held)), peaks=np.zeros((fingers, held), dtype=np.int64),
             peaks_from=np.zeros(fingers, dtype=np.int64), peaks_to=np.zeros(fingers, dtype=np.int64),
-            entered=np.zeros(fingers, dtype=np.int64),
+            entered=np.zeros(fingers, dtype=np.int64), fit_lo=np.zeros(fingers, dtype=np.int64),
+            fit_hi=np.zeros(fingers, dtype=np.int64),
             held=np.zeros(fingers, dtype=np.int64), known=np.zeros(fingers, dtype=np.int64),
             walked=np.zeros(fingers, dtype=np.int64), newest=np.full(fingers, -np.inf))
 
