@@ -22,6 +22,7 @@ import pytest
 from inhand_common.rotations import matrix_to_quaternion, quaternion_to_matrix
 from inhand_stereo.camera_model import CameraModel
 from inhand_stereo.texture import (
+    MapView,
     Window,
     _local_outward,
     _median_colours,
@@ -291,6 +292,36 @@ def test_cells_a_touch_map_holds_off_the_surface_get_the_colour_the_camera_saw()
     seen = visible & textured
     assert np.abs(colours[seen].astype(int) - expected[seen].astype(int)).max() <= 3
     assert not textured[hidden].any()
+
+
+def test_cells_a_touch_map_holds_inside_the_surface_get_the_colour_the_camera_saw():
+    """The other way: the seen face's cells moved one cell in along its normal (a finger
+    pressing, a pad's centre), so the measured surface lies a cell in front of them, in a
+    free cell. The window (a quarter of a cell in front) does not reach it; the map's own
+    view does: nothing of the map lies in front of those cells, and the measured depth is
+    within ``MapView.tolerance`` of theirs. Nothing more than a cell from the seen face is
+    painted (the side faces, seen edge-on, are next to it)."""
+    cam = camera()
+    box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))          # the -x face straight on
+    image, depth = render([box], cam, pose, IDENTITY)
+    cells = box.cells()
+    visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
+    normals = box.face_normals()[box.faces_of(cells).argmax(axis=1)]
+    moved = cells - np.where(visible[:, None], RES * normals, 0.0)
+    window_only = texture_cells(moved, RES, image, cam, cam.R, pose, IDENTITY, depth,
+                                map_view=None)
+    colours, textured = texture_cells(moved, RES, image, cam, cam.R, pose, IDENTITY, depth)
+    assert visible.sum() > 60
+    assert not window_only.textured[visible].any()
+    assert textured[visible].all()
+    assert np.abs(colours[visible].astype(int) - expected[visible].astype(int)).max() <= 3
+    front_face = box.faces_of(cells)[:, 0]
+    away = np.min(np.linalg.norm(cells[:, None] - cells[front_face][None], axis=2), axis=1)
+    assert np.count_nonzero(hidden & (away > 1.5 * RES)) > 150
+    assert not textured[hidden & (away > 1.5 * RES)].any()
+    with pytest.raises(ValueError, match='map_view'):
+        texture_cells(moved, RES, image, cam, cam.R, pose, IDENTITY, depth,
+                      map_view=MapView(min_samples=0))
 
 
 def test_the_back_of_a_thin_plate_right_behind_its_front_is_not_painted():

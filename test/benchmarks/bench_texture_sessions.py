@@ -4,6 +4,7 @@
 Run from the workspace root with the workspace's environment::
 
     .venv/bin/python test/benchmarks/bench_texture_sessions.py [--keep DIR] [--set tune|report|bundled|all]
+        [--map-view off|MIN,TOLERANCE,REACH[,AHEAD]]
 
 The map's texture (``inhand_stereo/texture.py``) is judged on what a user meets: a touch map
 of a hand that hovers, trembles and lifts at an angle (``simulate_session --hand ...``),
@@ -148,7 +149,20 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--keep', type=Path, help='keep (and reuse) the sessions here')
     parser.add_argument('--set', choices=[*SETS, 'all'], default='all')
+    parser.add_argument('--map-view', metavar='off|MIN,TOLERANCE,REACH[,AHEAD]',
+                        help="texture_cells' second rule instead of its default (MapView): off, "
+                        'or its min_samples, tolerance (cells), reach (px) and ahead (cells)')
     args = parser.parse_args()
+    if args.map_view:
+        from inhand_stereo.texture import MapView, texture_cells
+        fields = args.map_view.split(',')
+        view = None if args.map_view == 'off' else MapView(
+            min_samples=int(fields[0]), tolerance=float(fields[1]), reach=float(fields[2]),
+            ahead=float(fields[3]) if len(fields) > 3 else MapView().ahead)
+        # every caller (build_map's stereo node path included) uses the default
+        assert texture_cells.__kwdefaults__ is not None
+        texture_cells.__kwdefaults__['map_view'] = view
+        print(f'texture_cells map_view={view}')
     names = list(SETS) if args.set == 'all' else [args.set]
     with tempfile.TemporaryDirectory() as scratch:
         folder = args.keep or Path(scratch)

@@ -24,25 +24,39 @@ rectified with ``R_left``) and is projected with the rectified ``P``. Then:
    measurement (NaN, inf) takes the depth of the nearest pixel with one within ``fill``
    (2 px: stereo leaves thin gaps at edges), and otherwise never counts (the image alone
    cannot tell the front of an object from its back).
-3. *Facing the camera* (the orientation rule, ``orientation``, off by default): the cell's
+3. *Seen from the map* (``map_view``, the second way a cell gets colour): where the window
+   finds too little, the map's own cells say what the camera faces. Every occupied cell's
+   face, seen at its depth, is drawn into a depth image of the map (the nearest cell wins);
+   a footprint sample counts for a cell when no other cell is in front of it there by more
+   than ``MapView.ahead`` (half a cell) and the stereo depth there (or of the nearest pixel
+   with one within ``MapView.reach``, 4 px) lies within ``MapView.tolerance`` (1.25 cells)
+   of the cell's depth. At least ``MapView.min_samples`` (6 of 49) must count. This takes
+   the cells a touch map holds a cell or so *inside* the surface (a pressing finger, a
+   pad's centre), whose measured surface lies in the free cell in front: the window does
+   not reach them, and nothing of the map hides them. A thin part's back stays unpainted
+   (its front cells are in front of it), and so does a cell where stereo measured nothing
+   nearby (no depth is still no evidence). The colour is the median of the samples that
+   count, as for the window.
+4. *Facing the camera* (the orientation rule, ``orientation``, off by default): the cell's
    outward direction estimated as its centre minus the centroid of the occupied cells
    around it (``'local'``: a cube of ``2 * orientation_radius + 1`` cells, from
    summed-volume tables; ``'centroid'``: all occupied cells, exact for a sphere); a cell
    whose outward direction points away from the camera is not textured.
 
-The window was chosen on touch sessions of other hands and objects
+The window and the map's view were chosen on touch sessions of other hands and objects
 (``test/benchmarks/bench_texture_sessions.py``, its ``tune`` set; docs/stereo.md has the
 figures): the cell alone (the rule before) textured 0.70 of the cells the camera saw;
 more in front paints more, and more of the back of thin walls (0.75 cells: 0.86 of the
 seen cells, 1.9 % of the unseen ones painted far from any seen surface); 0.25 in front and
-1 behind: 0.79, 0.8 %. On sessions not used to choose (``report``) 0.65 -> 0.76, back faces
-0.3 -> 0.8 %. On ``inhand_sim``'s cat from four sides with exact cells
-(``bench_texture.py``) it textures 82 % of the seen cells (98 % of the seen area) and no
-hidden cell far from the seen surface; a 6 mm plate's 224 back cells stay unpainted.
+1 behind: 0.79, 0.8 %; with the map's view 0.83, 0.8 %. On sessions not used to choose
+(``report``) 0.65 -> 0.75 -> 0.79, back faces 0.3 -> 0.8 -> 0.9 %. On ``inhand_sim``'s cat
+from four sides with exact cells (``bench_texture.py``) it textures 87 % of the seen cells
+(98 % of the seen area), 3 of 2,812 hidden cells far from the seen surface, no wrong
+colour; a 6 mm plate's 224 back cells stay unpainted.
 
 The colour is the per-channel median of the samples that count (not one pixel: robust to
 noise and to the edges of occluders). Cells that are not textured get colour 0, as the
-``occupancy/textured`` contract says. The footprints are read by one compiled loop
+``occupancy/textured`` contract says. The footprints are read by compiled loops
 (``texture_kernels.py``): a 10,000-cell map on a 640x480 image in about 15 ms here.
 """
 
@@ -56,10 +70,10 @@ from numpy.typing import ArrayLike, NDArray
 from inhand_common.array_types import Bools, Floats, Matrix3, Points, Vector3
 from inhand_common.rotations import quaternion_to_matrix
 from inhand_stereo.camera_model import CameraModel
-from inhand_stereo.texture_kernels import window_pixels
+from inhand_stereo.texture_kernels import front_pixels, map_depth, window_pixels
 
-__all__ = ['CellTexture', 'Orientation', 'Pose', 'Projection', 'Window', 'facing_camera',
-           'map_to_rectified', 'project_cells', 'texture_cells']
+__all__ = ['CellTexture', 'MapView', 'Orientation', 'Pose', 'Projection', 'Window',
+           'facing_camera', 'map_to_rectified', 'project_cells', 'texture_cells']
 
 Pose: TypeAlias = tuple[ArrayLike, ArrayLike]     # (position (3,) m, quaternion (4,) x y z w)
 Orientation: TypeAlias = Literal['local', 'centroid', 'none']
@@ -214,12 +228,25 @@ class Window(NamedTuple):
 WINDOW = Window()
 
 
+class MapView(NamedTuple):
+    """The second rule (module doc, 3): where the map's own cells say a cell is in front,
+    and the stereo depth agrees with the cell's depth. In cells, except ``reach`` (px)."""
+
+    min_samples: int = 6      # of the footprint's 49: where it is in front and depth agrees
+    tolerance: float = 1.25   # cells: the stereo depth within this of the cell's centre depth
+    ahead: float = 0.5        # cells: another occupied cell this much nearer hides the pixel
+    reach: float = 4.0        # px: a pixel without depth takes the nearest one's within this
+
+
+MAP_VIEW = MapView()
+
+
 def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8],
                   camera: CameraModel, R_left: ArrayLike, camera_pose: Pose, object_pose: Pose,
                   depth: NDArray[np.floating], *, window: Window = WINDOW,
                   samples: int = SAMPLES, min_samples: int = MIN_SAMPLES, fill: float = FILL,
-                  orientation: Orientation = 'none', orientation_radius: int = 4
-                  ) -> CellTexture:
+                  orientation: Orientation = 'none', orientation_radius: int = 4,
+                  map_view: MapView | None = MAP_VIEW) -> CellTexture:
     """Colour of each occupied cell where the rectified left camera saw it (module doc).
 
     ``centres`` (N, 3) occupied cell centres in the map frame; ``resolution`` the cell edge
@@ -230,8 +257,8 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     tracker frame, each ``(position, quaternion xyzw)``; ``depth`` (H, W) metres along the
     rectified optical axis, NaN or inf where stereo measured nothing. Options (module doc):
     ``window``, ``samples`` per side of the footprint, ``min_samples`` in the window,
-    ``fill`` (px) and ``orientation``. Returns colours (N, 3) uint8 (0 where not textured)
-    and the textured mask (N,).
+    ``fill`` (px), ``orientation`` and ``map_view`` (None: the window rule alone). Returns
+    colours (N, 3) uint8 (0 where not textured) and the textured mask (N,).
     """
     points = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     _check(image, depth, camera)
@@ -239,28 +266,49 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
             fill < 0.0 or not all(0.0 <= extent <= 2.0 for extent in window):
         raise ValueError('resolution must be > 0, samples >= 1, min_samples in [1, '
                          'samples^2], fill >= 0, the window 0-2 cells each way')
+    if map_view is not None and not (1 <= map_view.min_samples <= samples * samples
+                                     and map_view.tolerance >= 0.0 and map_view.ahead >= 0.0
+                                     and map_view.reach >= 0.0):
+        raise ValueError(f'map_view: min_samples in [1, samples^2], tolerance, ahead and '
+                         f'reach >= 0, got {map_view}')
     colours = np.zeros((len(points), 3), dtype=np.uint8)
     textured = np.zeros(len(points), dtype=bool)
     matrix, offset = map_to_rectified(camera_pose, object_pose, R_left)
-    cells, u, v, z, in_camera = _candidates(points, resolution, camera.P, matrix, offset,
-                                            depth.shape, orientation, orientation_radius)
+    P = np.asarray(camera.P, dtype=np.float64)
+    rectified = points @ matrix.T + offset
+    projection = _project_rectified(rectified, P)
+    cells = _candidates(points, projection, resolution, matrix, offset, depth.shape,
+                        orientation, orientation_radius)
     if len(cells) == 0:
         return CellTexture(colours, textured)
+    u, v, z = projection.u[cells], projection.v[cells], projection.z[cells]
+    stereo_depth = np.ascontiguousarray(depth, dtype=np.float32)
     ijk, occupied = _lattice(points, resolution, pad=3)   # the kernel looks 3 cells around
     strides = (np.array(occupied.strides) // occupied.itemsize).astype(np.int64)
-    P = np.asarray(camera.P, dtype=np.float64)
     inverse = np.linalg.inv(P[:, :3]).astype(np.float64)
     half = resolution / 2.0
     pixels = np.empty((len(cells), samples * samples), dtype=np.int64)
     counts = window_pixels(
-        u, v, z, in_camera,
+        u, v, z, np.ascontiguousarray(rectified[cells]),
         np.ravel_multi_index(tuple(ijk[cells].T), occupied.shape).astype(np.int64),
         occupied.reshape(-1), strides, np.ascontiguousarray(matrix, dtype=np.float64),
-        np.ascontiguousarray(depth, dtype=np.float32), P, inverse,
-        np.asarray(inverse @ P[:, 3], dtype=np.float64), float(resolution), int(samples),
-        -half - window.in_front * resolution, half + window.behind * resolution,
-        (0.5 + window.beside) * resolution, float(fill), pixels)
+        stereo_depth, P, inverse, np.asarray(inverse @ P[:, 3], dtype=np.float64),
+        float(resolution), int(samples), -half - window.in_front * resolution,
+        half + window.behind * resolution, (0.5 + window.beside) * resolution, float(fill),
+        pixels)
     seen = counts >= min_samples
+    if map_view is not None:
+        # the cells the window did not texture, by the second rule; their pixels in place
+        rest = np.flatnonzero(~seen)
+        front = np.empty(depth.shape, dtype=np.float64)
+        map_depth(projection.u, projection.v, projection.z, P, float(resolution), front)
+        found = np.empty((len(rest), samples * samples), dtype=np.int64)
+        counts[rest] = front_pixels(
+            u[rest], v[rest], z[rest], front, stereo_depth, P, float(resolution), int(samples),
+            map_view.ahead * resolution, map_view.tolerance * resolution,
+            float(map_view.reach), found)
+        pixels[rest] = found
+        seen[rest] = counts[rest] >= map_view.min_samples
     textured[cells[seen]] = True
     used = np.arange(samples * samples) < counts[seen, None]
     owners = np.repeat(np.arange(int(np.count_nonzero(seen))), counts[seen])
@@ -268,24 +316,21 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     return CellTexture(colours, textured)
 
 
-def _candidates(points: Points, resolution: float, P: Floats, matrix: Matrix3,
+def _candidates(points: Points, projection: Projection, resolution: float, matrix: Matrix3,
                 offset: Vector3, shape: tuple[int, ...], orientation: Orientation,
-                orientation_radius: int
-                ) -> tuple[NDArray[np.intp], Floats, Floats, Floats, Points]:
-    """The cells in front of the camera whose centre's pixel is in the image (and that face
-    it, by ``orientation``): their indices, their projections (u, v, z) and their centres
-    in the rectified camera frame."""
-    rectified = points @ matrix.T + offset
-    u, v, z = _project_rectified(rectified, P)
+                orientation_radius: int) -> NDArray[np.intp]:
+    """The indices of the cells in front of the camera whose centre's pixel is in the
+    image (and that face it, by ``orientation``)."""
     height, width = shape
-    column, row = np.floor(u + 0.5), np.floor(v + 0.5)
-    candidate = (z > MIN_DEPTH) & (column >= 0) & (column < width) & (row >= 0) & (row < height)
+    column, row = np.floor(projection.u + 0.5), np.floor(projection.v + 0.5)
+    candidate = (projection.z > MIN_DEPTH) & (column >= 0) & (column < width) & (row >= 0) & \
+        (row < height)
     if orientation != 'none' and len(points):
         camera_in_map = -matrix.T @ offset
         candidate &= facing_camera(points, resolution, camera_in_map, orientation,
                                    orientation_radius)
-    cells = np.flatnonzero(candidate)
-    return cells, u[cells], v[cells], z[cells], np.ascontiguousarray(rectified[cells])
+    cells: NDArray[np.intp] = np.flatnonzero(candidate)
+    return cells
 
 
 def warm_up() -> None:

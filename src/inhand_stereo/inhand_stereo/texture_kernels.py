@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from inhand_stereo.vision_kernels import _compiled, _inlined
 
-__all__ = ['window_pixels']
+__all__ = ['front_pixels', 'map_depth', 'window_pixels']
 
 Floats = NDArray[np.float64]
 
@@ -47,6 +47,76 @@ def _depth_at(depth: NDArray[np.float32], row: int, col: int, fill: float
     return best, best_index
 
 
+@_inlined
+def _footprint(u: float, v: float, z: float, P: Floats, resolution: float,
+               cols: NDArray[np.int64], rows: NDArray[np.int64]) -> None:
+    """The columns and rows of a cell's footprint (its face seen at depth ``z``, centred on
+    pixel (u, v)), sampled ``len(cols)`` times a side: pixel centres at integers (ROS)."""
+    samples = len(cols)
+    scale_u = P[0, 0] / z * resolution
+    scale_v = P[1, 1] / z * resolution
+    for b in range(samples):           # the footprint's columns, then its rows
+        cols[b] = math.floor(u + ((b + 0.5) / samples - 0.5) * scale_u + 0.5)
+        rows[b] = math.floor(v + ((b + 0.5) / samples - 0.5) * scale_v + 0.5)
+
+
+@_compiled
+def map_depth(u: Floats, v: Floats, z: Floats, P: Floats, resolution: float,
+              depth: Floats) -> None:
+    """The map's own depth image, in ``depth`` (H, W; +inf where no cell is seen): each
+    cell (projection ``u, v, z``; z <= 0 behind the camera) covers its face's square of
+    pixels at its depth, and the nearest cell wins (a z-buffer of the occupied cells)."""
+    height, width = depth.shape
+    depth[:, :] = math.inf
+    for k in range(len(u)):
+        if not z[k] > 0.0:
+            continue
+        half_u = P[0, 0] / z[k] * resolution / 2.0
+        half_v = P[1, 1] / z[k] * resolution / 2.0
+        c0 = max(0, math.floor(u[k] - half_u + 0.5))
+        c1 = min(width, math.floor(u[k] + half_u + 0.5))
+        r0 = max(0, math.floor(v[k] - half_v + 0.5))
+        r1 = min(height, math.floor(v[k] + half_v + 0.5))
+        for row in range(r0, r1):
+            for col in range(c0, c1):
+                if z[k] < depth[row, col]:
+                    depth[row, col] = z[k]
+
+
+@_compiled
+def front_pixels(u: Floats, v: Floats, z: Floats, front: Floats, depth: NDArray[np.float32],
+                 P: Floats, resolution: float, samples: int, ahead: float, tolerance: float,
+                 reach: float, pixels: NDArray[np.int64]) -> NDArray[np.int64]:
+    """For each cell (its projection ``u, v, z``): the flat indices of the pixels of its
+    ``samples`` x ``samples`` footprint where it is the map's front cell (``front``, from
+    :func:`map_depth`, is no nearer than ``z - ahead``) and the stereo depth there (or of
+    the nearest pixel with one within ``reach`` px) lies within ``tolerance`` of ``z``:
+    written to ``pixels[k, :count]`` (a filled sample: the pixel that gave it its depth, as
+    in :func:`window_pixels`); returns the counts (K,)."""
+    height, width = depth.shape
+    counts = np.zeros(len(u), dtype=np.int64)
+    cols = np.empty(samples, dtype=np.int64)
+    rows = np.empty(samples, dtype=np.int64)
+    for k in range(len(u)):
+        _footprint(u[k], v[k], z[k], P, resolution, cols, rows)
+        count = 0
+        for a in range(samples):
+            row = rows[a]
+            if row < 0 or row >= height:
+                continue
+            for b in range(samples):
+                col = cols[b]
+                if col < 0 or col >= width or front[row, col] < z[k] - ahead:
+                    continue
+                d, pixel = _depth_at(depth, row, col, reach)
+                if d <= 0.0 or abs(d - z[k]) > tolerance:
+                    continue
+                pixels[k, count] = pixel      # filled: the colour that goes with that depth
+                count += 1
+        counts[k] = count
+    return counts
+
+
 @_compiled
 def window_pixels(u: Floats, v: Floats, z: Floats, centres: Floats, homes: NDArray[np.int64],
                   occupied: NDArray[np.bool_], strides: NDArray[np.int64], to_map: Floats,
@@ -74,12 +144,8 @@ def window_pixels(u: Floats, v: Floats, z: Floats, centres: Floats, homes: NDArr
         cx, cy, cz = centres[k, 0], centres[k, 1], centres[k, 2]
         norm = math.sqrt(cx * cx + cy * cy + cz * cz)
         sx, sy, sz = cx / norm, cy / norm, cz / norm
-        scale_u = P[0, 0] / z[k] * resolution
-        scale_v = P[1, 1] / z[k] * resolution
+        _footprint(u[k], v[k], z[k], P, resolution, cols, rows)
         count = 0
-        for b in range(samples):           # the footprint's columns, then its rows
-            cols[b] = math.floor(u[k] + ((b + 0.5) / samples - 0.5) * scale_u + 0.5)
-            rows[b] = math.floor(v[k] + ((b + 0.5) / samples - 0.5) * scale_v + 0.5)
         for a in range(samples):
             row = rows[a]
             if row < 0 or row >= height:
