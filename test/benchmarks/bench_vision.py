@@ -11,8 +11,9 @@
 2. The integration against Open3D's ``UniformTSDFVolume.integrate`` on the same depth image
    and the same grid (origin, 5 mm cells, 70^3), both on one thread: each process pinned to
    the same core (Open3D runs its loops on every core it may use, whatever OMP_NUM_THREADS
-   says), in alternating rounds so that both see the same machine. Target: ours at most
-   Open3D's (best of the runs; medians printed too). Open3D is a benchmark-only dependency:
+   says), in alternating rounds so that both see the same machine, each into a fresh map
+   or volume made outside the timing. Target: ours at most Open3D's (best of the runs;
+   medians printed too). Open3D is a benchmark-only dependency:
    installed here on first use into ``.venv-open3d`` (pip ``open3d-cpu``; its library
    needs Debian's ``libusb-1.0-0``, installed with apt-get when run as root).
 3. OctoMap's ``insertPointCloud`` on the same points (pyoctomap: ray casting from the camera
@@ -97,6 +98,10 @@ class Pair:
 
     def integrate(self) -> None:
         self.vision.reset()
+        self.expose()
+
+    def expose(self) -> None:
+        """The exposure alone, into the map as it is (reset outside the timing)."""
         self.vision.integrate(self.depth, self.P, self.map_to_camera, self.mask)
 
     def update(self) -> None:
@@ -164,8 +169,11 @@ def against_open3d(pair: Pair, runs: int) -> bool | None:
             pair.integrate()                              # warm
             for _ in range(rounds):
                 for _ in range(runs):
+                    # a fresh map each time, cleared outside the timing as Open3D's fresh
+                    # volume is made outside it
+                    pair.vision.reset()
                     started = time.perf_counter()
-                    pair.integrate()
+                    pair.expose()
                     ours.append(time.perf_counter() - started)
                 child.stdin.write(f'{runs}\n')
                 child.stdin.flush()
