@@ -295,19 +295,22 @@ def test_cells_a_touch_map_holds_off_the_surface_get_the_colour_the_camera_saw()
 
 
 def test_cells_a_touch_map_holds_inside_the_surface_get_the_colour_the_camera_saw():
-    """The other way: the seen face's cells moved one cell in along its normal (a finger
-    pressing, a pad's centre), so the measured surface lies a cell in front of them, in a
-    free cell. The window (a quarter of a cell in front) does not reach it; the map's own
-    view does: nothing of the map lies in front of those cells, and the measured depth is
-    within ``MapView.tolerance`` of theirs. Nothing more than a cell from the seen face is
-    painted (the side faces, seen edge-on, are next to it)."""
+    """The other way: the seen face's cells moved 0.6 of a cell in along its normal (a
+    finger pressing, a pad's centre), so their centres lie 0.84 of a cell behind the
+    measured surface, beyond the window's reach (the cell's half and a quarter in front).
+    The map's own view takes them: nothing of the map lies in front of those cells, and
+    the measured depth is within ``MapView.tolerance`` (a cell) of theirs. Nothing more
+    than a cell from the seen face is painted (the side faces, seen edge-on, are next to
+    it)."""
     cam = camera()
     box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))          # the -x face straight on
     image, depth = render([box], cam, pose, IDENTITY)
     cells = box.cells()
     visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
     normals = box.face_normals()[box.faces_of(cells).argmax(axis=1)]
-    moved = cells - np.where(visible[:, None], RES * normals, 0.0)
+    assert np.allclose(cells[visible, 0] - (box.centre[0] - box.half[0]), 0.24 * RES,
+                       atol=0.01 * RES)                  # the face crosses its cells here
+    moved = cells - np.where(visible[:, None], 0.6 * RES * normals, 0.0)
     window_only = texture_cells(moved, RES, image, cam, cam.R, pose, IDENTITY, depth,
                                 map_view=None)
     colours, textured = texture_cells(moved, RES, image, cam, cam.R, pose, IDENTITY, depth)

@@ -29,8 +29,8 @@ rectified with ``R_left``) and is projected with the rectified ``P``. Then:
    face, seen at its depth, is drawn into a depth image of the map (the nearest cell wins);
    a footprint sample counts for a cell when no other cell is in front of it there by more
    than ``MapView.ahead`` (half a cell) and the stereo depth there (or of the nearest pixel
-   with one within ``MapView.reach``, 4 px) lies within ``MapView.tolerance`` (1.25 cells)
-   of the cell's depth. At least ``MapView.min_samples`` (6 of 49) must count. This takes
+   with one within ``MapView.reach``, 4 px) lies within ``MapView.tolerance`` (a cell) of
+   the cell's depth. At least ``MapView.min_samples`` (6 of 49) must count. This takes
    the cells a touch map holds a cell or so *inside* the surface (a pressing finger, a
    pad's centre), whose measured surface lies in the free cell in front: the window does
    not reach them, and nothing of the map hides them. A thin part's back stays unpainted
@@ -48,11 +48,12 @@ The window and the map's view were chosen on touch sessions of other hands and o
 figures): the cell alone (the rule before) textured 0.70 of the cells the camera saw;
 more in front paints more, and more of the back of thin walls (0.75 cells: 0.86 of the
 seen cells, 1.9 % of the unseen ones painted far from any seen surface); 0.25 in front and
-1 behind: 0.79, 0.8 %; with the map's view 0.83, 0.8 %. On sessions not used to choose
-(``report``) 0.65 -> 0.75 -> 0.79, back faces 0.3 -> 0.8 -> 0.9 %. On ``inhand_sim``'s cat
-from four sides with exact cells (``bench_texture.py``) it textures 87 % of the seen cells
-(98 % of the seen area), 3 of 2,812 hidden cells far from the seen surface, no wrong
-colour; a 6 mm plate's 224 back cells stay unpainted.
+1 behind: 0.79, 0.8 %; with the map's view 0.81, 0.7 % (1.25 cells of tolerance: 0.83, but
+worse colours in the tail). On sessions not used to choose (``report``) 0.65 -> 0.75 ->
+0.78, back faces 0.3 -> 0.8 -> 0.9 %. On ``inhand_sim``'s cat from four sides with exact
+cells (``bench_texture.py``) it textures 86 % of the seen cells (98 % of the seen area),
+1 of 2,812 hidden cells far from the seen surface, no wrong colour; a 6 mm plate's 224
+back cells stay unpainted.
 
 The colour is the per-channel median of the samples that count (not one pixel: robust to
 noise and to the edges of occluders). Cells that are not textured get colour 0, as the
@@ -233,7 +234,7 @@ class MapView(NamedTuple):
     and the stereo depth agrees with the cell's depth. In cells, except ``reach`` (px)."""
 
     min_samples: int = 6      # of the footprint's 49: where it is in front and depth agrees
-    tolerance: float = 1.25   # cells: the stereo depth within this of the cell's centre depth
+    tolerance: float = 1.0    # cells: the stereo depth within this of the cell's centre depth
     ahead: float = 0.5        # cells: another occupied cell this much nearer hides the pixel
     reach: float = 4.0        # px: a pixel without depth takes the nearest one's within this
 
