@@ -1,9 +1,11 @@
-"""Compiled loop of the texture of the occupied cells (numba), used only by texture.py.
+"""Compiled loops of the texture of the occupied cells (numba), used only by texture.py.
 
-Why compiled: each cell reads 81 pixels of its footprint, and each pixel's measured point is
-tested against the cell's window and against the occupied cells around it. As numpy passes
-over (cells, 81, 3) temporaries that took 150 ms for a 10,000-cell map; one pass here reads
-each pixel once and keeps only the pixels that count.
+Why compiled: each cell reads the 49 pixels of its footprint, and each pixel's measured
+point is tested against the cell's window and against the occupied cells around it
+(:func:`window_pixels`), or against the map's own depth image (:func:`map_depth`,
+:func:`front_pixels`: the second rule). As numpy passes over (cells, 49, 3) temporaries
+that took 150 ms for a 10,000-cell map; one pass here reads each pixel once and keeps only
+the pixels that count.
 """
 
 from __future__ import annotations
