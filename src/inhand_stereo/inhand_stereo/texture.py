@@ -298,9 +298,9 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
         half + window.behind * resolution, (0.5 + window.beside) * resolution, float(fill),
         pixels)
     seen = counts >= min_samples
-    if map_view is not None:
+    rest = np.flatnonzero(~seen)
+    if map_view is not None and len(rest):
         # the cells the window did not texture, by the second rule; their pixels in place
-        rest = np.flatnonzero(~seen)
         front = np.empty(depth.shape, dtype=np.float64)
         map_depth(projection.u, projection.v, projection.z, P, float(resolution), front)
         found = np.empty((len(rest), samples * samples), dtype=np.int64)
