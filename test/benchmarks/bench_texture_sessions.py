@@ -156,9 +156,13 @@ def main() -> int:
     if args.map_view:
         from inhand_stereo.texture import MapView, texture_cells
         fields = args.map_view.split(',')
-        view = None if args.map_view == 'off' else MapView(
-            min_samples=int(fields[0]), tolerance=float(fields[1]), reach=float(fields[2]),
-            ahead=float(fields[3]) if len(fields) > 3 else MapView().ahead)
+        try:
+            view = None if args.map_view == 'off' else MapView(
+                min_samples=int(fields[0]), tolerance=float(fields[1]), reach=float(fields[2]),
+                ahead=float(fields[3]) if len(fields) > 3 else MapView().ahead)
+        except (IndexError, ValueError):
+            parser.error(f'--map-view: off, or MIN,TOLERANCE,REACH[,AHEAD] (numbers), got '
+                         f'{args.map_view!r}')
         # every caller (build_map's stereo node path included) uses the default
         assert texture_cells.__kwdefaults__ is not None
         texture_cells.__kwdefaults__['map_view'] = view
