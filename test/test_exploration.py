@@ -268,16 +268,64 @@ def test_the_guide_sends_fingers_to_its_suggestions():
     rng = np.random.default_rng(0)
     directions = rng.normal(size=(400, 3))
     starts = RADIUS * directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    paths = [np.stack([s, s * 0.99]) for s in starts]
-    chosen = guide_.choose(starts, np.ones(len(starts), dtype=bool), paths)
+    chosen = guide_.choose(starts, np.ones(len(starts), dtype=bool))
     assert chosen is not None and guide_.plans == 1
     # the start is within reach of the best suggestion, on the untouched half
     assert starts[chosen][2] < 0.01
     assert guide_.surface is not None
     greedy = StrokeGuide('greedy', support=None)
     greedy.touched(cells, stroke=True)
-    far = greedy.choose(starts, np.ones(len(starts), dtype=bool), paths)
+    far = greedy.choose(starts, np.ones(len(starts), dtype=bool))
     assert starts[far][2] < -0.03          # the farthest from everything touched: the bottom
+    assert greedy.steering() is None       # the baseline is not steered
     with pytest.raises(ValueError):
         StrokeGuide('random', support=None)
     assert START_REACH > 0
+
+
+def test_the_guide_steers_a_stroke_away_from_the_touched_surface_and_its_own_trail():
+    from inhand_sim.guidance import REPEL_REACH, TRAIL_SKIP, StrokeGuide
+    cells, _ = _sphere_cap(z_above=0.0)
+    guide_ = StrokeGuide('guided', support=None)
+    assert guide_.steering() is None       # nothing touched yet: the person strokes
+    guide_.touched(cells, stroke=True)
+    away = guide_.steering()
+    assert away is not None
+    # just below the touched cap's edge: pushed down, away from it, hard (one-sided)
+    edge = RADIUS * np.array([[np.cos(-0.15), 0.0, np.sin(-0.15)]])
+    push = away(edge)[0]
+    assert push[2] < 0 and np.linalg.norm(push) > 0.5
+    # far below it, in untouched surface: no push, the stroke keeps its heading
+    bottom = np.array([[0.0, 0.0, -RADIUS]])
+    assert np.allclose(away(bottom), 0.0)
+    # the stroke's own trail pushes it on once it is TRAIL_SKIP steps behind
+    steering = guide_.steering()
+    assert steering is not None
+    step = np.array([0.002, 0.0, 0.0])
+    for k in range(TRAIL_SKIP + 1):
+        ahead = steering(bottom + k * step)
+    assert ahead[0, 0] > 0 and np.isclose(np.linalg.norm(ahead[0, 1:]), 0.0)
+    assert TRAIL_SKIP * np.linalg.norm(step) < REPEL_REACH
+
+
+def test_a_steered_stroke_goes_where_its_guide_sends_it_on_the_surface():
+    """The guided explorer's strokes (exploration._integrate_strokes with a steering): from
+    the same place on a box's side, sent up a stroke climbs, sent down it descends, and it
+    stays on the surface either way."""
+    from inhand_sim.catalogue import load_object
+    from inhand_sim.exploration import _STEERED, ExplorationSettings, _integrate_strokes, _Surroundings
+    from inhand_sim.objects import HeldRegion
+    box = load_object('box')
+    settings = ExplorationSettings()
+    start = box.project_to_surface((box.centre + np.array([0.0, box.size[1], 0.0]))[None])
+    normal = box.normals(start)
+    nobody = HeldRegion('nobody', (), ())
+    ends = {}
+    for name, direction in (('up', (0.0, 0.0, 1.0)), ('down', (0.0, 0.0, -1.0))):
+        path, _, steps = _integrate_strokes(
+            box, _Surroundings(box, False), nobody, False, settings, start, normal,
+            np.array([[1.0, 0.0, 0.0]]), np.array([_STEERED]), np.random.default_rng(0),
+            lambda points, d=direction: np.tile(np.asarray(d), (len(points), 1)), length=0.04)
+        assert steps[0] > 10 and np.abs(box.sdf(path[0])).max() < 1e-6
+        ends[name] = path[0, steps[0], 2] - start[0, 2]
+    assert ends['up'] > 0.01 and ends['down'] < -0.01

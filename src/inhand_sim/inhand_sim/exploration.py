@@ -84,6 +84,10 @@ SAMPLE_KINDS = ('transit', 'stroke', 'dwell', 'lift', 'away', 'hover')
 _FINGER_SIDES = {'thumb': (0.0, -1.0, 0.0), 'index': (0.25, 1.0, 0.0),
                  'middle': (-0.25, 1.0, 0.0)}
 _MODES = ('contour', 'meridian', 'free')
+# The guided explorer's strokes lean towards its guide's direction instead (_integrate_strokes):
+# this much per integration step, as a contour leans towards the horizontal.
+_STEERED = len(_MODES)
+_STEER_BLEND = 0.2
 
 
 @dataclass(frozen=True)
@@ -357,6 +361,14 @@ def _surface_step(obj, surroundings, held, table, settings, p, t, h):
     return q, n, ok
 
 
+def _max_steps(settings: ExplorationSettings) -> int:
+    """Integration steps of the longest stroke the settings plan."""
+    st = settings
+    max_len = (st.stroke_length_range[1] if st.stroke_length_range is not None else
+               st.stroke_duration_range[1] * st.speed_range[1] * (1.0 + st.speed_variation))
+    return math.ceil(max_len / st.stroke_step)
+
+
 def _build_pool(obj: SolidObject, held: HeldRegion, table: bool, settings: ExplorationSettings,
                 rng: np.random.Generator) -> _StrokePool:
     """Integrate ``pool_size`` candidate strokes over the surface, all at once."""
@@ -372,14 +384,35 @@ def _build_pool(obj: SolidObject, held: HeldRegion, table: bool, settings: Explo
         normals = np.concatenate([normals, n[ok]])
     starts, normals = starts[:st.pool_size], normals[:st.pool_size]
     s_count = len(starts)
-    max_len = (st.stroke_length_range[1] if st.stroke_length_range is not None else
-               st.stroke_duration_range[1] * st.speed_range[1] * (1.0 + st.speed_variation))
-    k_steps = math.ceil(max_len / st.stroke_step)
     modes = rng.choice(len(_MODES), size=s_count, p=np.asarray(st.mode_probabilities))
     heading = _normalize(np.cross(normals, rng.normal(size=(s_count, 3))))
+    paths, path_normals, lengths = _integrate_strokes(obj, surroundings, held, table, st, starts,
+                                                      normals, heading, modes, rng)
+    arclen = np.linalg.norm(np.diff(paths, axis=1), axis=2).sum(axis=1)
+    keep = arclen >= st.min_stroke_length
+    return _StrokePool(paths[keep], path_normals[keep], lengths[keep], arclen[keep],
+                       starts[keep], normals[keep], np.zeros(int(keep.sum()), dtype=bool))
+
+
+def _integrate_strokes(obj: SolidObject, surroundings: _Surroundings, held: HeldRegion, table: bool,
+                       settings: ExplorationSettings, starts: np.ndarray, normals: np.ndarray,
+                       heading: np.ndarray, modes: np.ndarray, rng: np.random.Generator,
+                       steer: Callable[[np.ndarray], np.ndarray] | None = None,
+                       length: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Strokes from ``starts`` (with their ``normals``) setting off along ``heading``, each
+    following its mode (an index into _MODES, or _STEERED: towards ``steer(points)``, the
+    direction a guide wants the fingertips at ``points`` to go), all at once, as far as the
+    longest stroke the settings plan (or ``length``, of the path). Returns their
+    paths (S, K+1, 3) and normals (past its end a stroke stays at its last point) and the
+    number of valid steps of each."""
+    st = settings
+    s_count = len(starts)
+    k_steps = _max_steps(st)
+    if length is not None:      # the rest of the path would not be stroked
+        k_steps = min(k_steps, math.ceil(length / st.stroke_step) + 1)
     up = np.array([0.0, 0.0, 1.0])
     turn_sigma = np.where(modes == 2, 0.10, 0.04)
-    blend = np.where(modes == 2, 0.0, 0.2)
+    blend = np.where(modes == 2, 0.0, np.where(modes == _STEERED, _STEER_BLEND, 0.2))
 
     paths = np.repeat(starts[:, None, :], k_steps + 1, axis=1)
     path_normals = np.repeat(normals[:, None, :], k_steps + 1, axis=1)
@@ -414,9 +447,14 @@ def _build_pool(obj: SolidObject, held: HeldRegion, table: bool, settings: Explo
         contour = np.cross(up, n)
         meridian = up - n[:, 2:3] * n
         pref = np.where((m == 0)[:, None], contour, meridian)
+        steered = m == _STEERED
+        if steer is not None and steered.any():
+            wanted = steer(pk[steered])
+            pref[steered] = wanted - np.sum(wanted * n[steered], axis=1, keepdims=True) * n[steered]
         weak = np.linalg.norm(pref, axis=1) < 0.2
         pref = _normalize(pref)
-        pref *= np.where(np.sum(pref * tp, axis=1) < 0, -1.0, 1.0)[:, None]
+        # a contour or meridian goes either way; a guide's direction only its own
+        pref *= np.where((np.sum(pref * tp, axis=1) < 0) & ~steered, -1.0, 1.0)[:, None]
         bl = np.where(weak | (m == 2), 0.0, blend[idx])[:, None]
         tn = _normalize(tp + bl * (pref - tp))
         angle = rng.normal(0.0, 1.0, len(idx)) * turn_sigma[idx]
@@ -432,12 +470,7 @@ def _build_pool(obj: SolidObject, held: HeldRegion, table: bool, settings: Explo
     # Past its end a stroke stays at its last point.
     last = np.minimum(np.arange(k_steps + 1)[None, :], lengths[:, None])
     rows = np.arange(s_count)[:, None]
-    paths, path_normals = paths[rows, last], path_normals[rows, last]
-    seg = np.linalg.norm(np.diff(paths, axis=1), axis=2)
-    arclen = seg.sum(axis=1)
-    keep = arclen >= st.min_stroke_length
-    return _StrokePool(paths[keep], path_normals[keep], lengths[keep], arclen[keep],
-                       starts[keep], normals[keep], np.zeros(int(keep.sum()), dtype=bool))
+    return paths[rows, last], path_normals[rows, last], lengths
 
 
 # --- air paths ---------------------------------------------------------------------------
@@ -807,18 +840,23 @@ class _Explorer:
                 return a, b
         return None
 
-    def choose_stroke(self, finger: _Finger, t: float, here: np.ndarray) -> tuple[int, int]:
+    def choose_stroke(self, finger: _Finger, t: float, here: np.ndarray,
+                      length: float | None = None) -> tuple[int, int]:
         """Draw ``finger``'s next stroke from the pool of the grip in force at ``t``: near
         ``here``, on the finger's side, preferably not explored yet, and not used since the
-        pool was last reset (when none is left). Returns (grip, pool index), marked used."""
+        pool was last reset (when none is left). Returns (grip, pool index), marked used.
+        ``length``: the most of its path the stroke can slide (a guided stroke is steered
+        that far), if known."""
         st = self.st
         gi = self.grip_index(t)
         pool = self.pool_list[gi]
         if self.guide is not None:
-            guided = self.guide.choose(pool.starts, ~pool.used,
-                                       [pool.paths[k, :pool.lengths[k] + 1] for k in range(len(pool.starts))])
+            guided = self.guide.choose(pool.starts, ~pool.used)
             if guided is not None:
                 pool.used[guided] = True
+                steering = self.guide.steering()
+                if steering is not None:
+                    self._steer(gi, guided, steering, length)
                 return gi, guided
         d = np.linalg.norm(pool.starts - here, axis=1)
         w = np.exp(-d / st.neighbourhood)
@@ -836,6 +874,26 @@ class _Explorer:
         index = int(self.rng.choice(len(w), p=w / w.sum()))
         pool.used[index] = True
         return gi, index
+
+    def _steer(self, gi: int, index: int, steering: Callable[[np.ndarray], np.ndarray],
+               length: float | None) -> None:
+        """Stroke ``index`` of grip ``gi``'s pool becomes one from the same start that goes
+        where ``steering`` sends it (the guided explorer: guidance.py), setting off that way,
+        integrated for ``length`` of path (None: the longest the settings plan)."""
+        pool = self.pool_list[gi]
+        start, normal = pool.starts[index:index + 1], pool.start_normals[index:index + 1]
+        wanted = steering(start)
+        heading = wanted - np.sum(wanted * normal, axis=1, keepdims=True) * normal
+        if np.linalg.norm(heading) < 1e-9:      # nowhere to go: any way
+            heading = np.cross(normal, self.rng.normal(size=(1, 3)))
+        path, normals, valid = _integrate_strokes(
+            self.obj, self.surroundings, self.grip_of[gi], self.table, self.st, start, normal,
+            _normalize(heading), np.array([_STEERED]), self.rng, steering, length)
+        steps = path.shape[1]       # past them the path stays at its end
+        pool.paths[index, :steps], pool.normals[index, :steps] = path[0], normals[0]
+        pool.paths[index, steps:], pool.normals[index, steps:] = path[0, -1], normals[0, -1]
+        pool.lengths[index] = valid[0]
+        pool.arclen[index] = float(np.linalg.norm(np.diff(path[0], axis=0), axis=1).sum())
 
     def mark_explored(self, points: np.ndarray) -> None:
         """Count a stroke along ``points`` (subsampled to about 40) as exploring every
@@ -903,7 +961,9 @@ class _Explorer:
             (gi, index), finger.pending = finger.pending, None
         else:
             here = finger.contact if finger.contact is not None else finger.pos
-            gi, index = self.choose_stroke(finger, t, here)
+            # at most: the wave of its speed (_StrokeTrack) gains up to 4/pi s x variation
+            reach = speed * (planned + 2.0 * self.st.speed_variation) * (1.0 + self.st.speed_variation)
+            gi, index = self.choose_stroke(finger, t, here, reach)
             arrival = self._to_stroke(finger, t, gi, index, speed, limit, window)
             if arrival is None:     # waiting for the re-grasp instead
                 return

@@ -147,7 +147,8 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument('--explorer', choices=EXPLORERS, default='random',
                         help='who chooses where each stroke starts: random (default) the '
                         'simulated person, guided the predicted surface\'s next touches '
-                        '(predict_surface), greedy the start farthest from all touched so far')
+                        '(predict_surface), each stroke steered away from the touched surface, '
+                        'greedy the start farthest from all touched so far')
     parser.add_argument('--duration', type=number(above=0.0, at_most=24 * 3600, unit='seconds'),
                         required=True, metavar='SECONDS')
     parser.add_argument('--seed', type=_seed, required=True, metavar='N')
