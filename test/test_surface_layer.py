@@ -74,6 +74,23 @@ def test_a_cell_of_a_flat_sheet_counts_its_evidence_gain_times_once_it_holds_a_p
     assert layered_evidence(evidence, N, flat(8, 8, 9), 0.4, 1.75) == pytest.approx(0.56)
 
 
+def test_a_cell_far_under_the_local_level_is_the_layer_whatever_the_plane_says():
+    # A well-explored patch (12 touches a cell) with a cell two touches strong in the air
+    # beside its edge, off the plane: nothing stronger one step along the normal (the test
+    # of the layer misses it), but it holds 2 / 12 of the level around it (under 0.2).
+    evidence = sheet(height=12.0)
+    hover = flat(13, 8, 9)
+    evidence[hover] = 2.0
+    level = np.sum(evidence[evidence > 0] ** 2) / np.sum(evidence)   # the 7^3 box holds all
+    assert 2.0 < 0.2 * level
+    assert layered_evidence(evidence, N, hover, 0.4, 1.0) == pytest.approx(0.8)
+    # A region passed a few times has its level there: the same cell beside a patch of 3
+    # touches keeps its evidence.
+    light = sheet(height=3.0)
+    light[hover] = 2.0
+    assert layered_evidence(light, N, hover, 0.4, 1.0) == 2.0
+
+
 def lifted_stroke():
     """A finger stroking a row of cells at 2 cm/s at 30 Hz, then lifting off along +z at
     0.1 m/s (slower than ``transit_speed``: the path model gives it a touch per cell)."""
