@@ -92,6 +92,46 @@ def test_the_fits_vectorised_jacobian_is_scipys_own_forward_difference_one():
                            atol=1e-6 * np.abs(expected).max())
 
 
+def test_the_reach_past_the_cells_is_a_residual_with_scipys_jacobian():
+    """How far the shape reaches past its inlier cells (beyond the margin) is zero on a side
+    the cells span and the overshoot on one they do not; its rows of the fit's Jacobian are
+    scipy's '2-point' derivative like the surface rows."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    from inhand_shape.superquadric import _Parameters, _Reach
+    local = np.array([[0.03, 0.0, 0.0], [-0.01, 0.02, -0.015], [0.0, -0.02, 0.012]])
+    reach = _Reach(np.array([True, True, False]), 1.0, 0.005)
+    # + ends, then - ends, each less the 5 mm margin: +x, +y reached by a cell; +z 0.02 past
+    # the last inlier at 0 (the cell at 0.012 is no inlier); -x 0.03 - 0.01; -y 0.02 - 0 (the
+    # cell at -0.02 is no inlier); -z 0.02 - 0.015 is within the margin
+    assert np.allclose(reach.past(local, np.array([0.03, 0.02, 0.02])),
+                       [0.0, 0.0, 0.015, 0.015, 0.015, 0.0])
+    rng = np.random.default_rng(4)
+    points = rng.normal(size=(300, 3)) * np.array([0.03, 0.02, 0.005])
+    packing = _Parameters(Rotation.from_rotvec([0.3, -0.5, 0.9]).as_matrix(), (0.001, 0.2))
+    scale = rng.uniform(0.2, 1.0, len(points))
+    reach = _Reach(rng.random(len(points)) < 0.8, 3.0, 0.005)
+    x = packing.vector(np.array([0.12, 0.1, 0.08]), (0.5, 1.2), np.array([0.002, -0.001, 0.003]))
+    residuals = packing.residuals(x, points, scale, reach)
+    assert residuals.shape == (len(points) + 6,) and np.all(residuals[-6:] > 0)   # too large
+    expected = approx_derivative(lambda v: packing.residuals(v, points, scale, reach), x,
+                                 method='2-point', bounds=(packing.lower, packing.upper))
+    assert np.allclose(packing.jacobian(x, points, scale, reach), expected, rtol=0,
+                       atol=1e-6 * np.abs(expected).max())
+
+
+def test_a_side_no_cell_shows_is_held_near_the_cells():
+    """A slab whose lowest 30 % was never touched: the surface term alone leaves its underside
+    where the search pushed it; held to its cells the fit is closer to the truth."""
+    rng = np.random.default_rng(1)
+    truth = _sq((7.5, 4, 3), (0.3, 0.6), (0, 0, 0.3))
+    cells = _cells(truth, rng, keep=lambda p: p[:, 2] > CENTRE[2] - 0.012)
+    held = _chamfer(fit_superquadric(cells, resolution=RESOLUTION).superquadric, truth, rng)
+    free = _chamfer(fit_superquadric(cells, resolution=RESOLUTION, reach=0.0).superquadric, truth, rng)
+    assert held < 0.0045, f'Chamfer {held * 1000:.1f} mm'
+    assert held < 0.75 * free, f'held {held * 1000:.1f} mm, free {free * 1000:.1f} mm'
+
+
 def test_the_surface_mesh_is_closed_where_the_cells_are_and_open_where_they_are_not():
     rng = np.random.default_rng(4)
     sphere = Superquadric(np.full(3, 0.04), (1.0, 1.0), np.eye(3), CENTRE)

@@ -149,9 +149,12 @@ class SurfacePrior:
     @classmethod
     def fitted(cls, points: Points, weights: Floats, resolution: float) -> SurfacePrior:
         """The robust superquadric fit of the points (superquadric.py): it closes a shape
-        from the part of it that was touched (a cap gives its sphere)."""
+        from the part of it that was touched (a cap gives its sphere). Free to reach past
+        the cells (``reach`` 0): predicting the untouched side is what a prior is for, and
+        the process's uncertainty, not the fit, says how far to trust it there."""
         keep = thinned(points, resolution, PRIOR_FIT_CELLS)
-        return cls(fit_superquadric(points[keep], weights[keep], resolution=resolution).superquadric)
+        return cls(fit_superquadric(points[keep], weights[keep], resolution=resolution,
+                                    reach=0.0).superquadric)
 
     def distance(self, points: Points) -> Floats:
         """First-order (Taubin) signed distance to the shape, m (negative inside)."""

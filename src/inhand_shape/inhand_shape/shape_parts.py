@@ -10,7 +10,11 @@ shell), and what is left must hang together (26-connected) to be searched again,
 one is that part's rim. Then every cell goes to the part nearest to it and each part is
 fitted again on its own cells (a first fit that had to compromise, a cup's body pulled
 towards its handle, is redone without the other part), and two parts one superquadric
-explains are merged (a shaft cut in two by the holding hand).
+explains are merged (a shaft cut in two by the holding hand). Every fit but a seed's growth
+is held to its cells (the fit's ``reach``: a shape may not reach far past its last cells,
+so a strip of a shaft touched on one side is a cylinder, not the face of a deep slab the
+support check then refuses); a growing seed is free to reach past them, since that is where
+the rest of its part is.
 
 A part is reported only when it explains its cells: :data:`EXPLAINED_SHARE` of them within
 one cell width of its surface, :data:`SUPPORTED_SHARE` of its surface within
@@ -28,7 +32,7 @@ from scipy import ndimage  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Points, Weights
 from inhand_common.cell_lattice import Lattice, cell_indices
-from inhand_shape.superquadric import FitResult, Superquadric, fit_superquadric
+from inhand_shape.superquadric import REACH_WEIGHT, FitResult, Superquadric, fit_superquadric
 
 __all__ = ['EXPLAINED_SHARE', 'MAX_PARTS', 'MIN_PART_CELLS', 'Decomposition', 'Part',
            'decompose']
@@ -113,10 +117,12 @@ def _sheet_reason(points: Points, resolution: float) -> str | None:
 
 
 def _fit_part(points: Points, weights: Weights, members: NDArray[np.intp], resolution: float,
-              start: Superquadric | None = None) -> tuple[Part | None, FitResult]:
+              start: Superquadric | None = None, reach: float = REACH_WEIGHT
+              ) -> tuple[Part | None, FitResult]:
     """The part fitted to ``members`` (None when it does not explain them), and the fit;
-    ``start`` as for :func:`fit_superquadric`."""
-    fit = fit_superquadric(points[members], weights[members], resolution=resolution, start=start)
+    ``start`` and ``reach`` as for :func:`fit_superquadric`."""
+    fit = fit_superquadric(points[members], weights[members], resolution=resolution, start=start,
+                           reach=reach)
     # only the cells on the surface vouch for it: a shape large enough to hold every cell
     # explains nothing
     surface = fit.distances <= resolution     # on_surface of the cells it was fitted to
@@ -141,8 +147,9 @@ def _grown(points: Points, weights: Weights, pool: NDArray[np.intp], seed: NDArr
     members = seed
     part: Part | None = None
     for _ in range(GROW_ROUNDS):
+        # free to reach past the seed: growing is finding the rest of its part there
         candidate, fit = _fit_part(points, weights, members, resolution,
-                                   None if part is None else part.superquadric)
+                                   None if part is None else part.superquadric, reach=0.0)
         if candidate is None:
             return part
         part = candidate

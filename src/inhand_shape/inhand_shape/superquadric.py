@@ -27,6 +27,16 @@ as z, and keeps the start with the highest likelihood. Why our own code: no main
 Python package fits superquadrics with an outlier model (EMS's reference code is a research
 script), and the model is 150 lines on scipy.
 
+**Held to its cells.** The surface term says nothing where there is no cell: a side the hand
+never touched (a static object's underside, the lower half of a shaft lying on the table)
+goes wherever the search pushes it, and a strip of cells along the top of a shaft is as well
+explained by one face of a deep slab as by a cylinder. So the least squares also counts how
+far the shape reaches past its inlier cells at each end of each of its axes, beyond a cell
+of margin (:class:`_Reach`): zero for every side the cells show, a pull back towards the
+cells for a side they do not, which the surface term resists only where the pulled-back
+shape explains the cells worse (the Solina-Bajcsy cost's ``sqrt(a1 a2 a3)`` is a cruder
+form of the same preference, for a smaller shape everywhere).
+
 :func:`fit_least_squares` is the classic baseline (Solina and Bajcsy 1990): least squares
 on ``sqrt(a1 a2 a3) (F^e1 - 1)`` from the same starts, every cell counted, no outliers.
 """
@@ -56,6 +66,10 @@ TRIM_PERCENTILE = 0.5      # the cells' extent along an axis, ignoring the extre
 TRIM_GAP = 1.5             # cells: a shape reaching this far past its cells is cut back ...
 TRIM_KEEP = 0.98           # ... when the cut shape keeps this share of the cells on it
 TRIM_ITERATIONS = 8        # EM steps from the cut shape when it does not
+REACH_WEIGHT = 0.2         # of the inliers' surface term: the pull back to the cells (_Reach)
+REACH_MARGIN = 1.0         # cells: a shape reaches this far past its last inlier cell freely
+                           # (the surface lies up to half a cell past the cell centres, and
+                           # the extreme inlier is as noisy again)
 EM_SCOUT_ITERATIONS = 4    # EM steps from each start before the most likely goes on
 _FD_STEP = float(np.finfo(float).eps) ** 0.5   # scipy's relative step of '2-point' differences
 _TINY = 1e-12
@@ -238,6 +252,29 @@ def _starts(points: Points, weights: Weights) -> list[tuple[Vector3, Matrix3, Ve
     return starts
 
 
+@dataclass(frozen=True)
+class _Reach:
+    """How far a shape reaches past its cells, as a fit residual. The surface term alone
+    has no say where no cell is: a side no cell shows (a static object's underside, the
+    lower half of a shaft lying on the table) goes wherever the search pushes it, and a
+    strip of cells along a shaft is as well explained by one face of a deep slab as by a
+    cylinder. Past each end of each of the shape's axes, the distance by which it reaches
+    beyond ``margin`` of its last inlier cell is a residual of ``weight``: zero for a shape
+    its cells span (every seen side), a pull back towards the cells for an unseen one,
+    which the surface term resists only where it explains the cells worse."""
+
+    inlier: NDArray[np.bool_]     # the cells that count (the surface's, not the strays)
+    weight: float
+    margin: float                 # m
+
+    def past(self, local: Floats, size: Floats) -> Floats:
+        """(..., 6) for cells ``local`` (..., N, 3) in the shape's frame and ``size`` (..., 3):
+        the reach past the cells at the + ends, then at the - ends, less the margin, >= 0."""
+        cells = local[..., self.inlier, :]
+        beyond = np.concatenate([size - cells.max(axis=-2), size + cells.min(axis=-2)], axis=-1)
+        return np.asarray(np.maximum(beyond - self.margin, 0.0))
+
+
 class _Parameters:
     """The 11 fit parameters as one vector: log sizes, exponents, a rotation vector
     relative to ``base``, and the centre."""
@@ -257,15 +294,30 @@ class _Parameters:
         rotation = self.base @ _rotation_matrix(x[5:8])
         return Superquadric(np.exp(x[:3]), (float(x[3]), float(x[4])), rotation, x[8:11].copy())
 
-    def distances(self, x: Floats, points: Points) -> Floats:
-        rotation = self.base @ _rotation_matrix(x[5:8])
-        return radial_distance((points - x[8:11]) @ rotation, np.exp(x[:3]), x[3], x[4])
+    def local(self, x: Floats, points: Points) -> Points:
+        """``points`` in the frame of the superquadric ``x``."""
+        return np.asarray((points - x[8:11]) @ (self.base @ _rotation_matrix(x[5:8])))
 
-    def jacobian(self, x: Floats, points: Points, scale: Floats) -> Floats:
-        """d(scale * distances)/dx (N, 11) by forward differences with scipy's own steps
-        (least_squares' default '2-point' Jacobian), all 11 shifted parameter vectors in one
-        vectorised pass: the residual on a few hundred cells costs less than the Python
-        call around it, and the Jacobian's 11 calls were most of a fit's time."""
+    def distances(self, x: Floats, points: Points) -> Floats:
+        return radial_distance(self.local(x, points), np.exp(x[:3]), x[3], x[4])
+
+    def residuals(self, x: Floats, points: Points, scale: Floats, reach: _Reach | None = None
+                  ) -> Floats:
+        """The fit's residuals: ``scale`` * distances (N,), then, with ``reach``, how far
+        the shape reaches past its cells (6,)."""
+        local = self.local(x, points)
+        d = scale * radial_distance(local, np.exp(x[:3]), x[3], x[4])
+        if reach is None:
+            return np.asarray(d)
+        return np.concatenate([d, reach.weight * reach.past(local, np.exp(x[:3]))])
+
+    def jacobian(self, x: Floats, points: Points, scale: Floats, reach: _Reach | None = None
+                 ) -> Floats:
+        """d(residuals)/dx ((N, 11), with ``reach`` (N + 6, 11)) by forward differences with
+        scipy's own steps (least_squares' default '2-point' Jacobian), all 11 shifted
+        parameter vectors in one vectorised pass: the residual on a few hundred cells costs
+        less than the Python call around it, and the Jacobian's 11 calls were most of a
+        fit's time."""
         step = _FD_STEP * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
         # a step past the upper bound goes the other way (scipy: '1-sided' schemes)
         step = np.where((x + step > self.upper) & (x - step >= self.lower), -step, step)
@@ -281,7 +333,11 @@ class _Parameters:
         # a moved centre: the points shift by the step along that axis, in the frame
         local[9:] = base[None, :, :] - step[8:, None, None] * rotation[None, :, :].transpose(1, 0, 2)
         d = radial_distance(local, np.exp(shifted[:, None, :3]), shifted[:, 3:4], shifted[:, 4:5])
-        return np.asarray(scale[:, None] * ((d[1:] - d[0]) / step[:, None]).T)
+        jacobian = scale[:, None] * ((d[1:] - d[0]) / step[:, None]).T
+        if reach is None:
+            return np.asarray(jacobian)
+        past = reach.weight * reach.past(local, np.exp(shifted[:, :3]))
+        return np.vstack([jacobian, ((past[1:] - past[0]) / step[:, None]).T])
 
 
 def _rotation_matrix(rotvec: Floats) -> Matrix3:
@@ -327,7 +383,8 @@ class _State:
 
 
 def _em(points: Points, weights: Weights, state: _State, resolution: float,
-        outlier_ratio: float, iterations: int, sigma_cap: float = math.inf) -> _State:
+        outlier_ratio: float, iterations: int, sigma_cap: float = math.inf,
+        reach_weight: float = 0.0) -> _State:
     """``iterations`` EM steps (fewer when converged) from ``state``, sigma at most
     ``sigma_cap``; the state after them."""
     x, packing = state.x, state.packing
@@ -337,9 +394,15 @@ def _em(points: Points, weights: Weights, state: _State, resolution: float,
     for _ in range(iterations):
         posterior, _ = _mixture(packing.distances(x, points), sigma, outlier_ratio, density)
         scale = np.sqrt(weights * posterior)
-        fit = least_squares(lambda v, scale=scale: scale * packing.distances(v, points), x,
-                            jac=lambda v, scale=scale: packing.jacobian(v, points, scale),
-                            bounds=(packing.lower, packing.upper), max_nfev=12, x_scale='jac')
+        inlier = posterior >= 0.5
+        # reaching r past the cells costs as much as reach_weight^2 of the inliers' weight
+        # lying r off the surface
+        reach = _Reach(inlier, reach_weight * math.sqrt(float(np.sum((weights * posterior)[inlier]))),
+                       REACH_MARGIN * resolution) if reach_weight > 0 and inlier.any() else None
+        fit = least_squares(
+            lambda v, scale=scale, reach=reach: packing.residuals(v, points, scale, reach), x,
+            jac=lambda v, scale=scale, reach=reach: packing.jacobian(v, points, scale, reach),
+            bounds=(packing.lower, packing.upper), max_nfev=12, x_scale='jac')
         change = float(np.abs(fit.x - x).max())
         x = fit.x
         d = packing.distances(x, points)
@@ -444,11 +507,13 @@ def _prepared(points: ArrayLike, weights: ArrayLike | None
 
 def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
                      resolution: float = 0.005, outlier_ratio: float = 0.2,
-                     start: Superquadric | None = None) -> FitResult:
+                     start: Superquadric | None = None, reach: float = REACH_WEIGHT) -> FitResult:
     """The superquadric that best explains ``points`` (N, 3) m (cell centres) weighted by
     ``weights`` (N,) (occupancy probabilities; default 1), with the outlier model of the
     module doc. ``resolution`` (the cell size) floors the surface's spread. ``start``: a
     superquadric near the answer (a fit of most of the same cells), searched from alone.
+    ``reach``: the weight of how far the shape reaches past its cells (module doc, "held
+    to its cells"; 0: free to reach anywhere no cell says otherwise).
     ValueError for fewer than 10 points."""
     cells, w, fit_cells, fit_weights = _prepared(points, weights)
     if start is None:
@@ -456,7 +521,7 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
         # carried on to convergence.
         states = [_em(fit_cells, fit_weights,
                       _state_of(Superquadric(half, (1.0, 1.0), frame, centre), fit_cells, resolution),
-                      resolution, outlier_ratio, EM_SCOUT_ITERATIONS)
+                      resolution, outlier_ratio, EM_SCOUT_ITERATIONS, reach_weight=reach)
                   for centre, frame, half in _starts(fit_cells, fit_weights)]
         leader = max(states, key=lambda s: s.likelihood)
         candidates = [leader, _switched(leader)]
@@ -465,7 +530,7 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
     # The cells' own spread is about a cell: a larger sigma would let one shape through
     # two parts pass for a fit of both.
     finals = [_em(fit_cells, fit_weights, state, resolution, outlier_ratio, EM_ITERATIONS,
-                  sigma_cap=resolution)
+                  sigma_cap=resolution, reach_weight=reach)
               for state in candidates]
     best = max(finals, key=lambda s: s.likelihood)
     sq, sigma, likelihood = best.packing.superquadric(best.x), best.sigma, best.likelihood
@@ -476,7 +541,8 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
         keep = TRIM_KEEP * _on_share(sq, fit_cells, fit_weights, resolution)
         # as cut; else refitted from the cut (the search then starts on the cells' side)
         refitted = _em(fit_cells, fit_weights, _state_of(cut, fit_cells, resolution, sigma),
-                       resolution, outlier_ratio, TRIM_ITERATIONS, sigma_cap=resolution)
+                       resolution, outlier_ratio, TRIM_ITERATIONS, sigma_cap=resolution,
+                       reach_weight=reach)
         for candidate, state in ((cut, None), (refitted.packing.superquadric(refitted.x), refitted)):
             if _on_share(candidate, fit_cells, fit_weights, resolution) >= keep:
                 sq = candidate
