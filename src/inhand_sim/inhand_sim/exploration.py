@@ -270,6 +270,16 @@ def _normalize(v):
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
 
 
+def _tangential(v: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``v`` (N, 3) without its component along the unit normals ``n`` (N, 3)."""
+    return np.asarray(v - np.sum(v * n, axis=1, keepdims=True) * n)
+
+
+def _arc_length(paths: np.ndarray) -> np.ndarray:
+    """Length of each path (..., K, 3) along its points."""
+    return np.asarray(np.linalg.norm(np.diff(paths, axis=-2), axis=-1).sum(axis=-1))
+
+
 def _min_jerk(u):
     u = np.clip(u, 0.0, 1.0)
     return u ** 3 * (10.0 - 15.0 * u + 6.0 * u ** 2)
@@ -388,7 +398,7 @@ def _build_pool(obj: SolidObject, held: HeldRegion, table: bool, settings: Explo
     heading = _normalize(np.cross(normals, rng.normal(size=(s_count, 3))))
     paths, path_normals, lengths = _integrate_strokes(obj, surroundings, held, table, st, starts,
                                                       normals, heading, modes, rng)
-    arclen = np.linalg.norm(np.diff(paths, axis=1), axis=2).sum(axis=1)
+    arclen = _arc_length(paths)
     keep = arclen >= st.min_stroke_length
     return _StrokePool(paths[keep], path_normals[keep], lengths[keep], arclen[keep],
                        starts[keep], normals[keep], np.zeros(int(keep.sum()), dtype=bool))
@@ -442,7 +452,7 @@ def _integrate_strokes(obj: SolidObject, surroundings: _Surroundings, held: Held
             turns[idx[won]] += 1
             retry = retry[~ok2]
         # Heading: keep it tangent, lean towards the mode's direction, drift randomly.
-        tp = _normalize(tk - np.sum(tk * n, axis=1, keepdims=True) * n)
+        tp = _normalize(_tangential(tk, n))
         m = modes[idx]
         contour = np.cross(up, n)
         meridian = up - n[:, 2:3] * n
@@ -450,7 +460,7 @@ def _integrate_strokes(obj: SolidObject, surroundings: _Surroundings, held: Held
         steered = m == _STEERED
         if steer is not None and steered.any():
             wanted = steer(pk[steered])
-            pref[steered] = wanted - np.sum(wanted * n[steered], axis=1, keepdims=True) * n[steered]
+            pref[steered] = _tangential(wanted, n[steered])
         weak = np.linalg.norm(pref, axis=1) < 0.2
         pref = _normalize(pref)
         # a contour or meridian goes either way; a guide's direction only its own
@@ -883,7 +893,7 @@ class _Explorer:
         pool = self.pool_list[gi]
         start, normal = pool.starts[index:index + 1], pool.start_normals[index:index + 1]
         wanted = steering(start)
-        heading = wanted - np.sum(wanted * normal, axis=1, keepdims=True) * normal
+        heading = _tangential(wanted, normal)
         if np.linalg.norm(heading) < 1e-9:      # nowhere to go: any way
             heading = np.cross(normal, self.rng.normal(size=(1, 3)))
         path, normals, valid = _integrate_strokes(
@@ -893,7 +903,7 @@ class _Explorer:
         pool.paths[index, :steps], pool.normals[index, :steps] = path[0], normals[0]
         pool.paths[index, steps:], pool.normals[index, steps:] = path[0, -1], normals[0, -1]
         pool.lengths[index] = valid[0]
-        pool.arclen[index] = float(np.linalg.norm(np.diff(path[0], axis=0), axis=1).sum())
+        pool.arclen[index] = float(_arc_length(path[0]))
 
     def mark_explored(self, points: np.ndarray) -> None:
         """Count a stroke along ``points`` (subsampled to about 40) as exploring every
@@ -1042,7 +1052,7 @@ class _Explorer:
         """Contour following goes on over the surface along ``path`` at the stroke's speed
         (a contact like the stroke before, under its id), cut at ``limit``. Returns the
         arrival time."""
-        length = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
+        length = float(_arc_length(path))
         dt = length / speed
         if t + dt >= limit:
             dt = max(limit - t, 0.0)
