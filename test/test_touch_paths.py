@@ -204,10 +204,25 @@ def test_a_stream_replayed_from_its_start_adds_as_a_new_stream():
 
 def test_untimed_points_are_one_touch_each():
     grid = OccupancyGrid(GridSpec(), PATH)
-    grid.integrate([[0.0025, 0.0025, 0.0025]])
-    assert grid.probabilities()[35, 35, 35] == pytest.approx(ONE_TOUCH)
-    grid.integrate([[0.0025, 0.0025, 0.0025]])
-    assert grid.probabilities()[35, 35, 35] == pytest.approx(TWO_TOUCHES)
+    pair = [[0.0025, 0.0025, 0.0025], [0.0075, 0.0025, 0.0025]]  # two cells: each supports the other
+    grid.integrate(pair)
+    assert grid.probabilities()[35:37, 35, 35] == pytest.approx([ONE_TOUCH] * 2)
+    grid.integrate(pair)
+    assert grid.probabilities()[35:37, 35, 35] == pytest.approx([TWO_TOUCHES] * 2)
+
+
+def test_a_cell_no_neighbour_continues_counts_as_the_layer():
+    """The surface layer's support (surface_layer.py, rule 4): however often one lone cell
+    is touched, it stays under 0.8 until a neighbour holds evidence too, and then counts
+    as much as that neighbour."""
+    lone = [[0.0025, 0.0025, 0.0025]]
+    grid = OccupancyGrid(GridSpec(), PATH)
+    for _ in range(6):
+        grid.integrate(lone)
+    assert grid.probabilities()[35, 35, 35] == pytest.approx(1.0 / (1.0 + C ** PATH.layer_factor))
+    grid.integrate([[0.0075, 0.0025, 0.0025]] * 3)
+    assert grid.probabilities()[35, 35, 35] == pytest.approx(1.0 / (1.0 + C ** 3))
+    assert grid.probabilities()[36, 35, 35] == pytest.approx(1.0 / (1.0 + C ** 3))
 
 
 def test_a_loaded_map_goes_on_from_its_evidence(tmp_path):

@@ -17,7 +17,7 @@ from inhand_tools.map_quality import SurfaceTruth, one_touch_oracle
 
 BENCH = 'test/benchmarks/bench_validation.py'
 QUALITY = 'test/benchmarks/bench_quality.py'
-ROW = re.compile(r'^(\S+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)\s+(\d+)%\s+([\d.]+)\s+([\d.]+)\s+'
+ROW = re.compile(r'^(\S+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)\s+([\d.]+)%\s+([\d.]+)\s+([\d.]+)\s+'
                  r'(met|NOT met)$', re.M)
 
 

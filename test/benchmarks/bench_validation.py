@@ -101,7 +101,7 @@ def main() -> int:
     output.mkdir(parents=True, exist_ok=True)
     print(f'# {len(bags)} validation sessions from {args.folder}; model: shipped config'
           f'{" + " + " ".join(args.set) if args.set else ""}')
-    print(f'{"session":32s} {"F@5mm":>6s} {"P":>6s} {"R":>6s} {"strays":>7s} {"oracle F":>8s} '
+    print(f'{"session":32s} {"F@5mm":>6s} {"P":>6s} {"R":>6s} {"strays":>10s} {"oracle F":>8s} '
           f'{"floor":>6s}  targets')
     started = time.monotonic()
     met = 0
@@ -113,7 +113,7 @@ def main() -> int:
             ok = r['P'] >= 0.97 and r['F'] >= r['floor'] and share <= 0.01
             met += ok
             print(f'{bag.name:32s} {r["F"]:6.3f} {r["P"]:6.3f} {r["R"]:6.3f} '
-                  f'{r["strays"]:4d} {share:3.0%} {r["oracle_F"]:8.3f} {r["floor"]:6.3f}  '
+                  f'{r["strays"]:4d} {share:5.1%} {r["oracle_F"]:8.3f} {r["floor"]:6.3f}  '
                   f'{"met" if ok else "NOT met"}', flush=True)
     print(f'\nsummary: targets met on {met} of {len(bags)} (precision >= 0.97, F >= floor, stray '
           f'cells <= 1%); {time.monotonic() - started:.0f} s')

@@ -111,7 +111,8 @@ OCCUPANCY_PARAMETERS = (
     ParamSpec('layer_factor', 0.4, 'path model: the share of its evidence a cell keeps when '
               'a cell one step along the local surface normal has more, or it holds under 0.2 '
               'of the evidence around it (the layer above the surface: lift-offs, set-downs, '
-              'hovers; surface_layer.py); 1: off',
+              'hovers), and the touches a cell no neighbour continues counts at most '
+              '(surface_layer.py); 1: off',
               minimum=0.0, maximum=1.0),
     ParamSpec('sheet_gain', 1.75, 'path model: how many times a cell of a flat sheet of '
               'evidence, with no stronger cell along its normal and at least 1.2 touches, counts '

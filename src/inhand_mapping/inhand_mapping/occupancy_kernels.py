@@ -280,7 +280,7 @@ def gather_cells(cells: CellArrays, geometry: GridGeometry, prior: float, thresh
         for iy in range(n):
             y = origin[1] + (iy + 0.5) * res
             for iz in range(n):
-                if log_odds[c] != prior or hits[c] > 0:
+                if hits[c] > 0 or log_odds[c] != prior:  # hits first: 4 bytes, not 8
                     z = origin[2] + (iz + 0.5) * res
                     touched[m, 0] = x
                     touched[m, 1] = y
