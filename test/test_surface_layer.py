@@ -67,8 +67,8 @@ def test_a_cell_of_a_flat_sheet_counts_its_evidence_gain_times_once_it_holds_a_p
     evidence = sheet(height=1.5)
     assert layered_evidence(evidence, N, flat(8, 8, 8), 0.4, 1.75) == pytest.approx(2.625)
     # Under SHEET_MIN_TOUCHES (a pass that turned back, a glancing touch): no gain.
-    weak = sheet(height=1.0)
-    assert layered_evidence(weak, N, flat(8, 8, 8), 0.4, 1.75) == 1.0
+    weak = sheet(height=0.8)
+    assert layered_evidence(weak, N, flat(8, 8, 8), 0.4, 1.75) == 0.8
     # The layer above the sheet gets none either: it is the weaker one along the normal.
     evidence[flat(8, 8, 9)] = 1.4
     assert layered_evidence(evidence, N, flat(8, 8, 9), 0.4, 1.75) == pytest.approx(0.56)

@@ -115,7 +115,7 @@ OCCUPANCY_PARAMETERS = (
               '(surface_layer.py); 1: off',
               minimum=0.0, maximum=1.0),
     ParamSpec('sheet_gain', 1.75, 'path model: how many times a cell of a flat sheet of '
-              'evidence, with no stronger cell along its normal and at least 1.2 touches, counts '
+              'evidence, with no stronger cell along its normal and at least 1 touch, counts '
               'its evidence (one pass over a surface the map confirms is enough; '
               'surface_layer.py); 1: off', minimum=1.0, maximum=4.0),
     ParamSpec('occupied_threshold', 0.8, 'Cells above this probability are occupied '

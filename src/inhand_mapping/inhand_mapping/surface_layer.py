@@ -39,10 +39,10 @@ The rule, per cell with evidence ``e`` (touches, touch_paths.py):
    ``SHEET_OFFSET`` of a cell of it along ``n``: curvature, a wall's two sides and the noise
    a stroke spreads across its cell thicken a sheet, and the flatness has to allow for
    that, but the layer beside a sheet lies a cell off its middle) and holds at least
-   ``SHEET_MIN_TOUCHES`` (a pass at stroke
-   speed through it) counts its evidence ``sheet_gain`` (1.75) times: a contact the
-   surface around it confirms is enough once, as the one-touch oracle assumes; without the
-   sheet a touch stays under the paper's 0.7.
+   ``SHEET_MIN_TOUCHES`` (a pass at stroke speed through it: 1 touch, 1.75 with the gain,
+   p 0.80) counts its evidence ``sheet_gain`` (1.75) times: a contact the surface around
+   it confirms is enough once, as the one-touch oracle assumes; without the sheet a touch
+   stays under the paper's 0.7. (A corner a pass clips is worth less than a touch.)
 4. *Support.* A surface is not one cell, and it continues along itself: a cell's evidence
    after rules 2-3 counts at most as much as its strongest neighbour's among those within
    30 degrees of its plane (of the 26, those whose offset makes at least 60 degrees with
@@ -53,7 +53,9 @@ The rule, per cell with evidence ``e`` (touches, touch_paths.py):
    sheet nothing changes. A cell the rest of the map does not continue (a lift-off's last
    sample, a corner clipped once) counts as the layer, and so does one whose only strong
    neighbour lies below it along the normal (the peak of a hover over a stroke). On the
-   docs' sets A and S the stray cells fall from 220 to 137 and from 94 to 74.
+   docs' sets A and S the stray cells fall from 220 to 137 and from 94 to 74; with the
+   sheet's gain from one touch (``SHEET_MIN_TOUCHES`` 1, was 1.2: what the support lets
+   through less of) to 142 and 74, with the recall back (docs/quality.md).
 
 Which cells the rule has to look at again: a cell's layered evidence depends only on the
 evidence within ``LAYER_RADIUS`` of it, so when evidence changes, the cells within that
@@ -86,7 +88,7 @@ WEIGHT_CAP = 4.0     # touches: a cell weighs at most this much in its neighbour
 SHEET_FLATNESS = 0.3   # a sheet's smallest spread is under this share of its middle one
 SHEET_OFFSET = 0.75    # cells: how far off the sheet's middle (along n) a cell of it lies
 SHEET_BREADTH = 0.5    # and its middle spread over this share of its largest
-SHEET_MIN_TOUCHES = 1.2  # touches a cell needs for the sheet's gain (one pass is 1 to 2)
+SHEET_MIN_TOUCHES = 1.0  # touches a cell needs for the sheet's gain (a pass is 1 to 2)
 NOISE_SHARE = 0.2    # a cell under this share of the local level counts as the layer
 SUPPORT_COS = 0.5    # a neighbour supports a cell within 30 degrees of its plane (cos 60)
 
