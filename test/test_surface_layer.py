@@ -36,12 +36,18 @@ def sheet(height=3.0, z=8):
     return evidence
 
 
-def test_a_cell_of_the_layer_above_a_sheet_keeps_the_factor_of_its_evidence():
+def test_a_cell_of_the_layer_above_a_sheet_keeps_the_factor_of_its_evidence_and_its_share():
     evidence = sheet()
     evidence[flat(8, 8, 9)] = 1.5          # a lift-off's pass just above the sheet
-    assert layered_evidence(evidence, N, flat(8, 8, 9), 0.4, 1.0) == pytest.approx(0.6)
+    # 0.4 of it, times its share of the stronger cell under it (1.5 of 3)
+    assert layered_evidence(evidence, N, flat(8, 8, 9), 0.4, 1.0) == pytest.approx(0.3)
     assert layered_evidence(evidence, N, flat(8, 8, 8), 0.4, 1.0) == 3.0
     assert layered_evidence(evidence, N, flat(8, 8, 9), 1.0, 1.0) == 1.5   # factor 1: off
+    # A much-rubbed spot's noise in the cell above: 6 touches over a sheet of 30 keep 0.48,
+    # where the factor alone would keep 2.4 (occupied)
+    rubbed = sheet(height=30.0)
+    rubbed[flat(8, 8, 9)] = 6.0
+    assert layered_evidence(rubbed, N, flat(8, 8, 9), 0.4, 1.0) == pytest.approx(0.48)
 
 
 def test_two_sheets_side_by_side_keep_both_a_thin_wall():
@@ -71,7 +77,7 @@ def test_a_cell_of_a_flat_sheet_counts_its_evidence_gain_times_once_it_holds_a_p
     assert layered_evidence(weak, N, flat(8, 8, 8), 0.4, 1.75) == 0.8
     # The layer above the sheet gets none either: it is the weaker one along the normal.
     evidence[flat(8, 8, 9)] = 1.4
-    assert layered_evidence(evidence, N, flat(8, 8, 9), 0.4, 1.75) == pytest.approx(0.56)
+    assert layered_evidence(evidence, N, flat(8, 8, 9), 0.4, 1.75) == pytest.approx(0.4 * 1.4 * 1.4 / 1.5)
 
 
 def test_a_cell_far_under_the_local_level_is_the_layer_whatever_the_plane_says():

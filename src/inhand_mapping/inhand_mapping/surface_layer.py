@@ -174,7 +174,12 @@ def _layered(evidence: CellFloats, n: int, c: int, factor: float, gain: float,
     normal_out[:] = normal
     up = _trilinear(evidence, n, ix + normal[0], iy + normal[1], iz + normal[2])
     down = _trilinear(evidence, n, ix - normal[0], iy - normal[1], iz - normal[2])
-    if e < max(up, down) or e < NOISE_SHARE * level2 / level1:
+    stronger = max(up, down)
+    if e < stronger and factor < 1.0:
+        # the layer keeps less the weaker it is: what the surface under a hover or the
+        # noise of a much-rubbed spot spills into the next cell is a small share of it
+        return float(e * factor * (e / stronger))
+    if e < stronger or e < NOISE_SHARE * level2 / level1:
         return float(e * factor)
     offset = abs(s1[0] * normal[0] + s1[1] * normal[1] + s1[2] * normal[2]) / s0
     if e >= SHEET_MIN_TOUCHES and spread[0] < SHEET_FLATNESS * spread[1] \
