@@ -109,7 +109,8 @@ OCCUPANCY_PARAMETERS = (
               '(3.3 cm/s at 5 mm cells) or longer is worth a second measurement',
               minimum=0.001, maximum=10.0),
     ParamSpec('layer_factor', 0.4, 'path model: the share of its evidence a cell keeps when '
-              'a cell one step along the local surface normal has more, or it holds under 0.2 '
+              'a cell one step along the local surface normal has more (times its share of '
+              'that cell), or it holds under 0.2 '
               'of the evidence around it (the layer above the surface: lift-offs, set-downs, '
               'hovers), and the touches a cell no neighbour continues counts at most '
               '(surface_layer.py); 1: off',

@@ -21,8 +21,12 @@ The rule, per cell with evidence ``e`` (touches, touch_paths.py):
    smallest eigenvalue is the normal ``n``.
 2. *The layer.* The evidence one cell along ``+n`` and ``-n`` (trilinear between cells,
    0 outside the grid). A cell with less evidence than either is the layer above (or
-   below) the surface: its evidence is scaled by ``layer_factor`` (0.4), so one touch of
-   it does not count and a full pass stays under 0.8.
+   below) the surface: its evidence is scaled by ``layer_factor`` (0.4) and by its share
+   of the stronger one (e / e_stronger), so one touch of it does not count, a full pass
+   stays under 0.8, and the noise a much-rubbed spot spills into the cell above (6
+   touches over 30) stays under it too: without the share, a cell of the layer with more
+   than 4.4 touches was occupied, and on small objects explored for minutes (the docs'
+   set S) that was most of the stray cells left.
    So is a cell under ``NOISE_SHARE`` (0.2) of the *local level*, the evidence-weighted
    mean evidence of the box (sum e^2 / sum e, uncapped): where the fingers went over the
    surface ten times, a cell passed twice is a hover, a lift or a corner the strokes
