@@ -37,6 +37,7 @@ import argparse
 import contextlib
 import io
 import math
+import shutil
 import sys
 import tempfile
 import time
@@ -91,6 +92,7 @@ def run_session(job: tuple) -> list[dict]:
         frames = int(np.searchsorted(session.exploration.times, ends[count - 1], side='right'))
         cut = replace(session, stamps_ns=session.stamps_ns[:frames], poses=session.poses[:, :frames])
         bag = Path(folder) / f'{tag}_{count}'
+        shutil.rmtree(bag, ignore_errors=True)  # a --keep folder of an earlier run: this run's session
         write_bag(cut, bag)
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             build_map([str(bag), '--config', str(config), '--output-dir', str(folder), '--quiet',
