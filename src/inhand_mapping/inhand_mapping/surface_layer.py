@@ -27,8 +27,9 @@ The rule, per cell with evidence ``e`` (touches, touch_paths.py):
    touches over 30) stays under it too: without the share, a cell of the layer with more
    than 4.4 touches was occupied, and on small objects explored for minutes (the docs'
    set S) that was most of the stray cells left.
-   So is a cell under ``NOISE_SHARE`` (0.2) of the *local level*, the evidence-weighted
-   mean evidence of the box (sum e^2 / sum e, uncapped): where the fingers went over the
+   So is a cell under ``NOISE_SHARE`` (0.2) of the *local level* (scaled by
+   ``layer_factor`` alone), the evidence-weighted mean evidence of the box (sum e^2 /
+   sum e, uncapped): where the fingers went over the
    surface ten times, a cell passed twice is a hover, a lift or a corner the strokes
    clipped. Exploring fills a neighbourhood evenly (strokes are centimetres long and
    cross it), while what happens off the surface is a small part of the time; on small
