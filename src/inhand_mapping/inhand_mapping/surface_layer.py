@@ -180,11 +180,13 @@ def _layered(evidence: CellFloats, n: int, c: int, factor: float, gain: float,
     up = _trilinear(evidence, n, ix + normal[0], iy + normal[1], iz + normal[2])
     down = _trilinear(evidence, n, ix - normal[0], iy - normal[1], iz - normal[2])
     stronger = max(up, down)
-    if e < stronger and factor < 1.0:
+    if e < stronger:
         # the layer keeps less the weaker it is: what the surface under a hover or the
         # noise of a much-rubbed spot spills into the next cell is a small share of it
-        return float(e * factor * (e / stronger))
-    if e < stronger or e < NOISE_SHARE * level2 / level1:
+        # (factor 1: the layer is off, share and all)
+        share = e / stronger if factor < 1.0 else 1.0
+        return float(e * factor * share)
+    if e < NOISE_SHARE * level2 / level1:
         return float(e * factor)
     offset = abs(s1[0] * normal[0] + s1[1] * normal[1] + s1[2] * normal[2]) / s0
     if e >= SHEET_MIN_TOUCHES and spread[0] < SHEET_FLATNESS * spread[1] \
