@@ -15,12 +15,14 @@ runs them with random seeds for a million inputs or more and counts them (``INPU
 
 from __future__ import annotations
 
+import atexit
 import collections
 import io
 import json
 import math
 import os
 import random
+import shutil
 import struct
 import tempfile
 from pathlib import Path
@@ -60,6 +62,7 @@ INPUTS: collections.Counter[str] = collections.Counter()   # inputs tried per ta
 STORE = get_typestore(Stores.ROS2_JAZZY)
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
 SCRATCH = Path(tempfile.mkdtemp(prefix='inhand-fuzz-'))
+atexit.register(shutil.rmtree, SCRATCH, ignore_errors=True)   # the run's files, not kept
 
 
 def mutate(data: bytes, edits, cut, tail) -> bytes:

@@ -117,8 +117,15 @@ def main() -> int:
     parser.add_argument('--quick', action='store_true', help='the bundled bags and two sessions')
     parser.add_argument('--keep', type=Path, help='keep the simulated sessions here')
     args = parser.parse_args()
-    scratch = args.keep or Path(tempfile.mkdtemp(prefix='bench_fusion_'))
-    scratch.mkdir(parents=True, exist_ok=True)
+    if args.keep:
+        args.keep.mkdir(parents=True, exist_ok=True)
+        return run(args, args.keep)
+    with tempfile.TemporaryDirectory(prefix='bench_fusion_') as scratch:   # not kept
+        return run(args, Path(scratch))
+
+
+def run(args: argparse.Namespace, scratch: Path) -> int:
+    """Simulate the sessions into ``scratch`` (unless there already) and print the table."""
     sessions = SESSIONS[:2] if args.quick else SESSIONS
     print('| session | fusion | touch F whole / observed (P) | vision | global |')
     print('|---|---|---|---|---|')

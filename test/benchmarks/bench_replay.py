@@ -24,6 +24,7 @@ import argparse
 import os
 import random
 import re
+import shutil
 import sys
 import tempfile
 import time
@@ -101,6 +102,7 @@ def bench(bag: Path, runs: int) -> int:
         published = re.search(r'published (\d+) messages in ([\d.]+) s wall', text)
         waited = re.search(r'acknowledged ([\d.]+) s after the first was published', text)
         grid, _ = load_npz(out / 'replay.npz') if saved else (None, None)
+        shutil.rmtree(out, ignore_errors=True)     # the map and the log are read: not kept
         done = grid.counts.integrated + grid.counts.outside + grid.counts.invalid if grid else 0
         publish_s = float(published.group(2)) if published else float('nan')
         ack_s = float(waited.group(1)) if waited else 0.0

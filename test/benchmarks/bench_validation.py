@@ -97,8 +97,15 @@ def main() -> int:
     if args.sessions:
         wanted = set(args.sessions.split(','))
         bags = [b for b in bags if b.name in wanted]
-    output = args.keep or Path(tempfile.mkdtemp(prefix='bench_validation_'))
-    output.mkdir(parents=True, exist_ok=True)
+    if args.keep:
+        args.keep.mkdir(parents=True, exist_ok=True)
+        return run(bags, args, args.keep)
+    with tempfile.TemporaryDirectory(prefix='bench_validation_') as scratch:   # maps not kept
+        return run(bags, args, Path(scratch))
+
+
+def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
+    """Build and score every session's map into ``output``, print the table."""
     print(f'# {len(bags)} validation sessions from {args.folder}; model: shipped config'
           f'{" + " + " ".join(args.set) if args.set else ""}')
     print(f'{"session":32s} {"F@5mm":>6s} {"P":>6s} {"R":>6s} {"strays":>10s} {"oracle F":>8s} '
