@@ -17,7 +17,8 @@ import pytest
 
 from inhand_mapping import map_io
 from inhand_mapping.occupancy import GridSpec, OccupancyGrid, SensorModel
-from inhand_mapping.surface_layer import layered_evidence
+from inhand_mapping.path_kernels import PathModel
+from inhand_mapping.surface_layer import BRIDGE_MIN_TOUCHES, apply_layer, layered_evidence
 
 N = 16
 C = 0.45
@@ -95,6 +96,57 @@ def test_a_cell_far_under_the_local_level_is_the_layer_whatever_the_plane_says()
     light = sheet(height=3.0)
     light[hover] = 2.0
     assert layered_evidence(light, N, hover, 0.4, 1.0) == 2.0
+
+
+def read_map(evidence, factor=0.4, gain=1.75):
+    """Touches the map counts per cell after every rule (apply_layer over all of it)."""
+    size = N ** 3
+    per_touch = -math.log(C)
+    model = PathModel(transit_speed=0.2, transit_falloff=2.0, speed_context=0.25,
+                      speed_window=0.1, track_gap=0.25, pass_time=0.25, pass_gap=0.5,
+                      return_share=0.65, visit_gap=1.0, stay_radius=0.01, step=0.001,
+                      max_steps=100, log_odds_per_touch=per_touch, prior=0.0,
+                      l_min=-100.0, l_max=100.0)
+    dirty = np.flatnonzero(evidence).astype(np.int64)
+    log_odds = np.zeros(size)
+    apply_layer(evidence, N, factor, gain, model, dirty, len(dirty), np.zeros(size, np.bool_),
+                np.empty(size, np.int64), np.zeros(size), np.zeros(size, np.bool_),
+                np.zeros((size, 3), np.float32), np.zeros(size), log_odds, np.zeros(size))
+    return log_odds / per_touch
+
+
+def test_a_gap_in_an_explored_surface_counts_as_the_surface_around_it():
+    # A patch passed three times, but one cell of it clipped by the passes (0.7 touches,
+    # no sheet gain): between two cells of the surface, it is bridged (rule 5).
+    evidence = sheet()
+    gap = flat(8, 8, 8)
+    evidence[gap] = 0.7
+    touches = read_map(evidence)
+    assert touches[flat(7, 8, 8)] == pytest.approx(3.0 * 1.75)     # the sheet's cells
+    assert touches[gap] == pytest.approx(3.0 * 1.75)
+    # Under BRIDGE_MIN_TOUCHES (nothing went through it): a hole stays a hole.
+    evidence[gap] = 0.5 * BRIDGE_MIN_TOUCHES
+    assert read_map(evidence)[gap] < 1.0
+    # The layer is never bridged: a cell over the sheet between two others over it, all
+    # three weaker than the sheet under them, keeps its own layered evidence.
+    evidence = sheet()
+    for ix in (7, 8, 9):
+        evidence[flat(ix, 8, 9)] = 1.5 if ix != 8 else 0.7
+    assert read_map(evidence)[flat(8, 8, 9)] == pytest.approx(0.4 * 0.7 * 0.7 / 3.0)
+    # Factor 1 (the layer off): no bridge either.
+    evidence = sheet()
+    evidence[gap] = 0.7
+    assert read_map(evidence, factor=1.0, gain=1.0)[gap] == pytest.approx(0.7)
+
+
+def test_a_stroke_alone_is_not_bridged():
+    # A line of cells is no surface (its plane is any plane through it): a clipped cell of
+    # one stroke stays as it is, whatever its neighbours hold.
+    evidence = np.zeros(N ** 3)
+    for ix in range(2, 14):
+        evidence[flat(ix, 8, 8)] = 3.0
+    evidence[flat(8, 8, 8)] = 0.7
+    assert read_map(evidence)[flat(8, 8, 8)] == pytest.approx(0.7)
 
 
 def lifted_stroke():

@@ -61,10 +61,25 @@ The rule, per cell with evidence ``e`` (touches, touch_paths.py):
    docs' sets A and S the stray cells fall from 220 to 137 and from 94 to 74; with the
    sheet's gain from one touch (``SHEET_MIN_TOUCHES`` 1, was 1.2: what the support lets
    through less of) to 142 and 74, with the recall back (docs/quality.md).
+5. *Bridge.* A surface continues through a cell between two of its cells: a cell that is
+   not the layer (neither of rule 2's tests), lies on a surface (its plane's smallest
+   spread under ``BRIDGE_FLATNESS`` of the middle one: not a ridge, a corner or a blob,
+   where a cell between two occupied ones may lie off the surface) and holds at least
+   ``BRIDGE_MIN_TOUCHES`` counts at least as much as the weaker of two opposite
+   neighbours within 30 degrees of its plane (after rule 4), neighbours that share a face
+   or an edge with it (across a corner the two span 8.7 mm of a curved surface). A
+   stroke's trace has gaps where the path ran near a cell's corner, tracker noise moved a
+   sample into the next cell or a fast pass clipped the cell (0.5-1.7 touches, and no
+   sheet gain off a sheet's middle), and a digitised surface oblique to the grid is two
+   cells thick where the layer test keeps one. Only a cell between two that are occupied
+   becomes occupied, so the rule closes gaps in a surface and never extends one; the
+   layer above a surface is left alone. On the docs' set A 9 sessions of 24 meet their
+   targets instead of 7, for 3 more stray cells; set S is unchanged (docs/quality.md).
 
 Which cells the rule has to look at again: a cell's layered evidence depends only on the
 evidence within ``LAYER_RADIUS`` of it, so when evidence changes, the cells within that
-distance are recomputed, and the support of their neighbours with them. The path model
+distance are recomputed, the support of their neighbours with them, and the bridge one
+cell further again. The path model
 marks the cells whose evidence changed (``dirty``); the grid applies the rule to their
 neighbourhoods when the map is read (occupancy.py), so a live node pays for it at its
 publish rate rather than at every sample, and the map read is always the rule applied to
@@ -84,9 +99,9 @@ from inhand_common.array_types import CellFloats, Indices
 from inhand_mapping.occupancy_kernels import _compiled, _inlined
 from inhand_mapping.path_kernels import PathModel, _clamp
 
-__all__ = ['LAYER_RADIUS', 'NOISE_SHARE', 'SHEET_BREADTH', 'SHEET_FLATNESS', 'SHEET_MIN_TOUCHES',
-           'SHEET_OFFSET', 'SUPPORT_COS', 'WEIGHT_CAP', 'apply_layer', 'layered_evidence',
-           'supported_evidence']
+__all__ = ['BRIDGE_FLATNESS', 'BRIDGE_MIN_TOUCHES', 'LAYER_RADIUS', 'NOISE_SHARE', 'SHEET_BREADTH',
+           'SHEET_FLATNESS', 'SHEET_MIN_TOUCHES', 'SHEET_OFFSET', 'SUPPORT_COS', 'WEIGHT_CAP',
+           'apply_layer', 'bridged_evidence', 'layered_evidence', 'supported_evidence']
 
 LAYER_RADIUS = 3     # cells: the neighbourhood whose evidence gives the local plane
 WEIGHT_CAP = 4.0     # touches: a cell weighs at most this much in its neighbours' planes
@@ -96,6 +111,8 @@ SHEET_BREADTH = 0.5    # and its middle spread over this share of its largest
 SHEET_MIN_TOUCHES = 1.0  # touches a cell needs for the sheet's gain (a pass is 1 to 2)
 NOISE_SHARE = 0.2    # a cell under this share of the local level counts as the layer
 SUPPORT_COS = 0.5    # a neighbour supports a cell within 30 degrees of its plane (cos 60)
+BRIDGE_MIN_TOUCHES = 0.5  # touches a cell needs to be bridged (a pass that clipped it)
+BRIDGE_FLATNESS = 0.5  # and its plane's smallest spread under this share of its middle one
 
 
 @_inlined
@@ -131,18 +148,18 @@ def layered_evidence(evidence: CellFloats, n: int, c: int, factor: float, gain: 
     when a cell one step along the local normal has more or the cell is under
     ``NOISE_SHARE`` of the local level, by ``gain`` when it is a cell of a flat sheet with
     at least ``SHEET_MIN_TOUCHES``."""
-    return _layered(evidence, n, c, factor, gain, np.zeros(3))
+    return _layered(evidence, n, c, factor, gain, np.zeros(3))[0]
 
 
 @_inlined
 def _layered(evidence: CellFloats, n: int, c: int, factor: float, gain: float,
-             normal_out: np.ndarray) -> float:
-    """``layered_evidence``, and the local normal into ``normal_out`` (zeros where the rule
-    does not look at the cell)."""
+             normal_out: np.ndarray) -> tuple[float, bool]:
+    """``layered_evidence``, whether rule 5 may bridge the cell, and the local normal into
+    ``normal_out`` (zeros where the rule does not look at the cell)."""
     normal_out[:] = 0.0
     e = evidence[c]
     if not e > 0.0 or (factor == 1.0 and gain == 1.0):
-        return float(e)
+        return float(e), False
     ix, iy, iz = c // (n * n), (c // n) % n, c % n
     r = LAYER_RADIUS
     s0 = 0.0
@@ -180,19 +197,20 @@ def _layered(evidence: CellFloats, n: int, c: int, factor: float, gain: float,
     up = _trilinear(evidence, n, ix + normal[0], iy + normal[1], iz + normal[2])
     down = _trilinear(evidence, n, ix - normal[0], iy - normal[1], iz - normal[2])
     stronger = max(up, down)
+    bridgeable = e >= BRIDGE_MIN_TOUCHES and spread[0] < BRIDGE_FLATNESS * spread[1]
     if e < stronger:
         # the layer keeps less the weaker it is: what the surface under a hover or the
         # noise of a much-rubbed spot spills into the next cell is a small share of it
         # (factor 1: the layer is off, share and all)
         share = e / stronger if factor < 1.0 else 1.0
-        return float(e * factor * share)
+        return float(e * factor * share), False
     if e < NOISE_SHARE * level2 / level1:
-        return float(e * factor)
+        return float(e * factor), False
     offset = abs(s1[0] * normal[0] + s1[1] * normal[1] + s1[2] * normal[2]) / s0
     if e >= SHEET_MIN_TOUCHES and spread[0] < SHEET_FLATNESS * spread[1] \
             and spread[1] > SHEET_BREADTH * spread[2] and offset < SHEET_OFFSET:
-        return float(e * gain)
-    return float(e)
+        return float(e * gain), bridgeable
+    return float(e), bridgeable
 
 
 @_inlined
@@ -243,15 +261,47 @@ def supported_evidence(layered: CellFloats, normals: np.ndarray, n: int, c: int,
 
 
 @_compiled
+def bridged_evidence(supported: CellFloats, bridgeable: np.ndarray, normals: np.ndarray,
+                     n: int, c: int, factor: float) -> float:
+    """Cell ``c``'s supported evidence bridged (rule 5 of the module docstring): where
+    ``bridgeable[c]`` (not the layer, on a surface, ``BRIDGE_MIN_TOUCHES`` or more), at
+    least the weaker of two opposite neighbours within ``SUPPORT_COS`` of its plane
+    (``normals[c]``) that share a face or an edge with it. ``factor`` 1: the layer is off, and so is this."""
+    v = supported[c]
+    if factor == 1.0 or not bridgeable[c]:
+        return float(v)
+    ix, iy, iz = c // (n * n), (c // n) % n, c % n
+    if ix == 0 or iy == 0 or iz == 0 or ix == n - 1 or iy == n - 1 or iz == n - 1:
+        return float(v)        # no cell beyond the grid's edge to bridge to
+    nx, ny, nz = normals[c, 0], normals[c, 1], normals[c, 2]
+    # the 13 directions of the 26 neighbours, each with its opposite, but the 4 body
+    # diagonals: two cells 8.7 mm apart span too much of a curved surface (the cell
+    # between them can lie off it)
+    for dx in range(0, 2):
+        for dy in range(-1 if dx else 0, 2):
+            for dz in range(-1 if dx or dy else 1, 2):
+                if dx != 0 and dy != 0 and dz != 0:
+                    continue
+                along = dx * nx + dy * ny + dz * nz
+                if along * along > SUPPORT_COS ** 2 * (dx * dx + dy * dy + dz * dz):
+                    continue
+                span = min(supported[((ix + dx) * n + iy + dy) * n + iz + dz],
+                           supported[((ix - dx) * n + iy - dy) * n + iz - dz])
+                v = max(v, span)
+    return float(v)
+
+
+@_compiled
 def apply_layer(evidence: CellFloats, n: int, factor: float, gain: float, model: PathModel,
                 dirty: Indices, n_dirty: int, dirty_mark: np.ndarray, region: Indices,
-                layered: CellFloats, normals: np.ndarray, log_odds: CellFloats,
-                probability: CellFloats) -> int:
-    """Recompute the layered evidence (``layered``) and the local normal (``normals``, (n^3,
-    3)) of every cell with evidence within
-    ``LAYER_RADIUS`` of the first ``n_dirty`` cells of ``dirty``, then the log-odds and
-    probability of those and of their neighbours (eq. 4 at distance 0 on the evidence held
-    to its support, clamped: the path model's own update, path_kernels), and clear their
+                layered: CellFloats, bridgeable: np.ndarray, normals: np.ndarray,
+                supported: CellFloats, log_odds: CellFloats, probability: CellFloats) -> int:
+    """Recompute the layered evidence (``layered``), whether rule 5 applies (``bridgeable``),
+    and the local normal (``normals``, (n^3, 3)) of every cell with evidence within
+    ``LAYER_RADIUS`` of the first ``n_dirty`` cells of ``dirty``, the support of those and
+    of their neighbours (``supported``), then the log-odds and probability of those and
+    of their neighbours (eq. 4 at distance 0 on the evidence held to its support and
+    bridged, clamped: the path model's own update, path_kernels), and clear their
     ``dirty_mark``. ``region`` is scratch (n^3). Returns how many cells were recomputed."""
     # The union of the dirty cells' neighbourhoods, each cell once: dirty_mark, cleared
     # here, serves as the visited mark (the dirty cells themselves are in the union).
@@ -260,13 +310,19 @@ def apply_layer(evidence: CellFloats, n: int, factor: float, gain: float, model:
     changed = _mark_around(dirty, n_dirty, LAYER_RADIUS, evidence, n, dirty_mark, region, 0)
     for k in range(changed):
         j = region[k]
-        layered[j] = _layered(evidence, n, j, factor, gain, normals[j])
+        layered[j], bridgeable[j] = _layered(evidence, n, j, factor, gain, normals[j])
     # A cell's support is its neighbours' layered evidence: one cell further.
-    count = _mark_around(region, changed, 1, evidence, n, dirty_mark, region, changed)
+    held = _mark_around(region, changed, 1, evidence, n, dirty_mark, region, changed)
+    for k in range(held):
+        j = region[k]
+        supported[j] = supported_evidence(layered, normals, n, j, factor)
+    # Its bridge is its neighbours' supported evidence: one cell further again.
+    count = _mark_around(region, held, 1, evidence, n, dirty_mark, region, held)
     for k in range(count):
         j = region[k]
         dirty_mark[j] = False
-        value = _clamp(model.prior + supported_evidence(layered, normals, n, j, factor)
+        value = _clamp(model.prior
+                       + bridged_evidence(supported, bridgeable, normals, n, j, factor)
                        * model.log_odds_per_touch, model.l_min, model.l_max)
         log_odds[j] = value
         probability[j] = 1.0 / (1.0 + math.exp(-value))

@@ -116,10 +116,13 @@ class TouchPaths:
             dirty_mark=np.zeros(size, dtype=np.bool_), dirty=np.empty(size, dtype=np.int64),
             n_dirty=np.zeros(1, dtype=np.int64))
         self._region = np.empty(size, dtype=np.int64)   # scratch of apply_layer
-        # each cell's evidence after the layer rules, before its support, and its local
-        # normal (surface_layer.py; zeros: not computed, any neighbour supports it)
+        # each cell's evidence after the layer rules, before its support, whether the
+        # bridge applies to it, its local normal (surface_layer.py; zeros: not computed, any neighbour
+        # supports it) and its evidence held to its support, before the bridge
         self.layered: CellFloats = np.zeros(size)
+        self.bridgeable = np.zeros(size, dtype=np.bool_)
         self.normals = np.zeros((size, 3), dtype=np.float32)
+        self.supported: CellFloats = np.zeros(size)
         self.tracks = self._new_tracks(0)
         self.visits = self._new_visits(0)
 
@@ -158,7 +161,8 @@ class TouchPaths:
         done = int(surface_layer.apply_layer(
             self.evidence, self.geometry.n, self.layer_factor, self.sheet_gain, self.model,
             counts.dirty, n_dirty, counts.dirty_mark, self._region, self.layered,
-            self.normals, self.cells.log_odds, self.cells.probability))
+            self.bridgeable, self.normals, self.supported, self.cells.log_odds,
+            self.cells.probability))
         counts.n_dirty[0] = 0
         return done
 
@@ -186,7 +190,9 @@ class TouchPaths:
         """Forget the tracks, the visits and the evidence (the cells are the grid's)."""
         self.evidence.fill(0.0)
         self.layered.fill(0.0)
+        self.bridgeable.fill(False)
         self.normals.fill(0.0)
+        self.supported.fill(0.0)
         self.counts.clock.fill(-np.inf)
         self.counts.overwritten.fill(0)
         self._clear_dirty()
@@ -199,7 +205,9 @@ class TouchPaths:
         from there. Clamped cells keep only the evidence of their clamp."""
         self.evidence[...] = ((np.asarray(log_odds, dtype=float).reshape(-1) - self.model.prior)
                               / self.model.log_odds_per_touch)
-        self.layered[...] = self.evidence    # as shown: a neighbour's support
+        self.layered[...] = self.evidence    # as shown: a neighbour's support and bridge
+        self.supported[...] = self.evidence
+        self.bridgeable.fill(False)
         self.normals.fill(0.0)
         self._clear_dirty()     # the log-odds given are the map shown
 
@@ -207,8 +215,9 @@ class TouchPaths:
         """Evidence saved with a map whose log-odds the grid holds (map_io): touches go on
         from it as they would have."""
         self.evidence[...] = np.asarray(evidence, dtype=float).reshape(-1)
-        # ``layered`` stays the evidence of the log-odds shown (``follow``): the saved map
-        # is the map read, and a cell next to later touches lends them its support as shown
+        # ``layered`` and ``supported`` stay the evidence of the log-odds shown (``follow``):
+        # the saved map is the map read, and a cell next to later touches lends them its
+        # support and bridge as shown
         self._clear_dirty()
 
     def _clear_dirty(self) -> None:
@@ -221,7 +230,9 @@ class TouchPaths:
         occupancy.py); the cells are this one's own."""
         self.evidence[...] = other.evidence
         self.layered[...] = other.layered
+        self.bridgeable[...] = other.bridgeable
         self.normals[...] = other.normals
+        self.supported[...] = other.supported
         self.tracks = kernels.PathTracks._make(field.copy() for field in other.tracks)
         self.visits = kernels.PathVisits._make(field.copy() for field in other.visits)
         self.counts = kernels.PathCounts._make(field.copy() for field in other.counts)
