@@ -117,11 +117,10 @@ def main() -> int:
     parser.add_argument('--quick', action='store_true', help='the bundled bags and two sessions')
     parser.add_argument('--keep', type=Path, help='keep the simulated sessions here')
     args = parser.parse_args()
-    if args.keep:
-        args.keep.mkdir(parents=True, exist_ok=True)
-        return run(args, args.keep)
-    with tempfile.TemporaryDirectory(prefix='bench_fusion_') as scratch:   # not kept
-        return run(args, Path(scratch))
+    with tempfile.TemporaryDirectory(prefix='bench_fusion_') as scratch:
+        folder = args.keep or Path(scratch)         # the sessions are kept only with --keep
+        folder.mkdir(parents=True, exist_ok=True)
+        return run(args, folder)
 
 
 def run(args: argparse.Namespace, scratch: Path) -> int:

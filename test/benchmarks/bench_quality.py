@@ -187,8 +187,15 @@ def main() -> int:
     rates = [float(v) for v in args.rates.split(',')]
     modes = [mode == 'static' for mode in args.modes.split(',')]
     sessions = sessions_of(args, objects, modes, rates, speeds)
-    folder = args.keep or Path(tempfile.mkdtemp(prefix='bench_quality_'))
-    folder.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix='bench_quality_') as scratch:
+        folder = args.keep or Path(scratch)        # the sessions are kept only with --keep
+        folder.mkdir(parents=True, exist_ok=True)
+        return report(args, sessions, folder)
+
+
+def report(args: argparse.Namespace, sessions: list[Session], folder: Path) -> int:
+    """Simulate and map ``sessions`` in ``folder``, ``args.jobs`` at a time, and print each
+    one's scores against its targets, the summary and (``--sweep``) the sensitivity."""
     print(f'# {len(sessions)} sessions of {args.duration:g} s, {args.jobs} at a time, in '
           f'{folder}; model: shipped config{" + " + " ".join(args.set) if args.set else ""}'
           + ('' if args.duration >= 120 else '; the targets are for 120 s sessions'))

@@ -97,11 +97,10 @@ def main() -> int:
     if args.sessions:
         wanted = set(args.sessions.split(','))
         bags = [b for b in bags if b.name in wanted]
-    if args.keep:
-        args.keep.mkdir(parents=True, exist_ok=True)
-        return run(bags, args, args.keep)
-    with tempfile.TemporaryDirectory(prefix='bench_validation_') as scratch:   # maps not kept
-        return run(bags, args, Path(scratch))
+    with tempfile.TemporaryDirectory(prefix='bench_validation_') as scratch:
+        folder = args.keep or Path(scratch)           # the maps are kept only with --keep
+        folder.mkdir(parents=True, exist_ok=True)
+        return run(bags, args, folder)
 
 
 def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:

@@ -233,6 +233,14 @@ def _mark_around(cells: Indices, count: int, radius: int, evidence: CellFloats, 
     return end
 
 
+@_inlined
+def _in_plane(dx: int, dy: int, dz: int, nx: float, ny: float, nz: float) -> bool:
+    """Whether the step to a neighbour (dx, dy, dz) lies within ``SUPPORT_COS`` of the plane
+    whose normal is ``n`` (zeros: any step does)."""
+    along = dx * nx + dy * ny + dz * nz
+    return bool(along * along <= SUPPORT_COS ** 2 * (dx * dx + dy * dy + dz * dz))
+
+
 @_compiled
 def supported_evidence(layered: CellFloats, normals: np.ndarray, n: int, c: int,
                        factor: float) -> float:
@@ -253,9 +261,7 @@ def supported_evidence(layered: CellFloats, normals: np.ndarray, n: int, c: int,
                 j = (jx * n + jy) * n + jz
                 if j == c or not layered[j] > strongest:
                     continue
-                dx, dy, dz = jx - ix, jy - iy, jz - iz
-                along = dx * nx + dy * ny + dz * nz
-                if along * along <= SUPPORT_COS ** 2 * (dx * dx + dy * dy + dz * dz):
+                if _in_plane(jx - ix, jy - iy, jz - iz, nx, ny, nz):
                     strongest = layered[j]
     return float(min(v, strongest))
 
@@ -282,8 +288,7 @@ def bridged_evidence(supported: CellFloats, bridgeable: np.ndarray, normals: np.
             for dz in range(-1 if dx or dy else 1, 2):
                 if dx != 0 and dy != 0 and dz != 0:
                     continue
-                along = dx * nx + dy * ny + dz * nz
-                if along * along > SUPPORT_COS ** 2 * (dx * dx + dy * dy + dz * dz):
+                if not _in_plane(dx, dy, dz, nx, ny, nz):
                     continue
                 span = min(supported[((ix + dx) * n + iy + dy) * n + iz + dz],
                            supported[((ix - dx) * n + iy - dy) * n + iz - dz])
