@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from inhand_common.rotations import matrix_to_quaternion, quaternion_to_matrix
 from inhand_stereo.camera_model import CameraModel
@@ -26,6 +27,7 @@ from inhand_stereo.texture import (
     Window,
     _local_outward,
     _median_colours,
+    depth_holes,
     map_to_rectified,
     project_cells,
     texture_cells,
@@ -485,6 +487,49 @@ def test_no_stereo_depth_means_not_textured():
     assert full.textured[left].sum() > 30 and not part.textured[left].any()
     assert np.array_equal(part.textured[right], full.textured[right])
     assert np.array_equal(part.colours[right], full.colours[right])
+
+
+def test_a_hole_in_the_stereo_depth_on_a_face_the_map_shows_gets_the_image_colour():
+    """Dark glass or a blank patch: stereo finds nothing in the middle of a face it sees
+    all around. Cells there that the map shows in front and that clearly face the camera
+    take their own pixels' colour (``MapView.blind``); with ``blind`` off, none does. The
+    hidden faces stay unpainted, and so does what lies beyond the object's outline, where
+    the missing depth reaches the image's border (the sphere and no-depth tests)."""
+    cam = camera()
+    box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))          # the -x face straight on
+    image, depth = render([box], cam, pose, IDENTITY)
+    cells = box.cells()
+    visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
+    u, v, _ = project_cells(cells, cam, cam.R, pose, IDENTITY)
+    centre_u, centre_v = np.median(u[visible]), np.median(v[visible])
+    rows, cols = np.mgrid[:HEIGHT, :WIDTH]
+    hole = (rows - centre_v) ** 2 + (cols - centre_u) ** 2 < 40.0 ** 2
+    holed = np.where(hole, np.nan, depth).astype(np.float32)
+    assert np.isfinite(depth[hole]).all()                        # the hole is on the face
+    in_hole = visible & ((v - centre_v) ** 2 + (u - centre_u) ** 2 < 25.0 ** 2)
+    assert in_hole.sum() > 10
+    sighted = texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, holed,
+                            map_view=MapView(blind=False))
+    assert not sighted.textured[in_hole].any()                    # no depth, no colour
+    colours, textured = texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, holed)
+    assert textured[in_hole].all()
+    assert np.abs(colours[in_hole].astype(int) - expected[in_hole].astype(int)).max() <= 3
+    assert not textured[hidden].any()
+    # outside the hole, the same as with the depth whole
+    whole = texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, depth)
+    far = (v - centre_v) ** 2 + (u - centre_u) ** 2 > 60.0 ** 2
+    assert np.array_equal(textured[far], whole.textured[far])
+    # the holes are the missing pixels the measured ones enclose (what scipy fills)
+    holes = depth_holes(holed)
+    assert holes[hole].all() and holes.sum() == hole.sum()
+    measured = np.isfinite(holed)
+    assert np.array_equal(holes, ndimage.binary_fill_holes(measured) & ~measured)
+    kept = texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, holed,
+                         depth_hole_mask=holes)
+    assert np.array_equal(kept.textured, textured) and np.array_equal(kept.colours, colours)
+    with pytest.raises(ValueError, match='depth_hole_mask'):
+        texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, holed,
+                      depth_hole_mask=holes[1:])
 
 
 def test_mono_images_give_grey_and_an_empty_map_gives_nothing():

@@ -4,7 +4,7 @@
 Run from the workspace root with the workspace's environment::
 
     .venv/bin/python test/benchmarks/bench_texture_sessions.py [--keep DIR] [--set tune|report|bundled|all]
-        [--map-view off|MIN,TOLERANCE,REACH[,AHEAD]]
+        [--map-view off|MIN,TOLERANCE,REACH[,AHEAD[,BLIND]]]
 
 The map's texture (``inhand_stereo/texture.py``) is judged on what a user meets: a touch map
 of a hand that hovers, trembles and lifts at an angle (``simulate_session --hand ...``),
@@ -149,9 +149,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--keep', type=Path, help='keep (and reuse) the sessions here')
     parser.add_argument('--set', choices=[*SETS, 'all'], default='all')
-    parser.add_argument('--map-view', metavar='off|MIN,TOLERANCE,REACH[,AHEAD]',
+    parser.add_argument('--map-view', metavar='off|MIN,TOLERANCE,REACH[,AHEAD[,BLIND]]',
                         help="texture_cells' second rule instead of its default (MapView): off, "
-                        'or its min_samples, tolerance (cells), reach (px) and ahead (cells)')
+                        'or its min_samples, tolerance (cells), reach (px), ahead (cells) '
+                        'and blind (on, off)')
     args = parser.parse_args()
     if args.map_view:
         from inhand_stereo.texture import MapView, texture_cells
@@ -159,9 +160,10 @@ def main() -> int:
         try:
             view = None if args.map_view == 'off' else MapView(
                 min_samples=int(fields[0]), tolerance=float(fields[1]), reach=float(fields[2]),
-                ahead=float(fields[3]) if len(fields) > 3 else MapView().ahead)
+                ahead=float(fields[3]) if len(fields) > 3 else MapView().ahead,
+                blind=fields[4] == 'on' if len(fields) > 4 else MapView().blind)
         except (IndexError, ValueError):
-            parser.error(f'--map-view: off, or MIN,TOLERANCE,REACH[,AHEAD] (numbers), got '
+            parser.error(f'--map-view: off, or MIN,TOLERANCE,REACH[,AHEAD[,on|off]], got '
                          f'{args.map_view!r}')
         # every caller (build_map's stereo node path included) uses the default
         assert texture_cells.__kwdefaults__ is not None

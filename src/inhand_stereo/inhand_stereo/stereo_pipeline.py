@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -31,7 +32,7 @@ from inhand_stereo.camera_model import CameraModel
 from inhand_stereo.disparity import DisparityConfig, DisparityMatcher, DisparityResult
 from inhand_stereo.rectification import StereoRectifier, rectifier_for
 from inhand_stereo.reprojection import camera_points_to_map, depth_and_points
-from inhand_stereo.texture import CellTexture, texture_cells
+from inhand_stereo.texture import CellTexture, depth_holes, texture_cells
 
 __all__ = ['StereoPipeline', 'StereoShot', 'pose_vector']
 
@@ -71,7 +72,13 @@ class StereoShot:
                else np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]))
         return texture_cells(centres, resolution, self.left_rgb, self.left_camera,
                              self.rectifier.R_left, (camera[:3], camera[3:]),
-                             (obj[:3], obj[3:]), self.depth)
+                             (obj[:3], obj[3:]), self.depth, depth_hole_mask=self.holes)
+
+    @cached_property
+    def holes(self) -> NDArray[np.bool_]:
+        """The depth's enclosed holes (texture.depth_holes): once per shot, not per map
+        update."""
+        return depth_holes(self.depth)
 
 
 class StereoPipeline:

@@ -34,9 +34,14 @@ rectified with ``R_left``) and is projected with the rectified ``P``. Then:
    the cells a touch map holds a cell or so *inside* the surface (a pressing finger, a
    pad's centre), whose measured surface lies in the free cell in front: the window does
    not reach them, and nothing of the map hides them. A thin part's back stays unpainted
-   (its front cells are in front of it), and so does a cell where stereo measured nothing
-   nearby (no depth is still no evidence). The colour is the median of the samples that
-   count, as for the window.
+   (its front cells are in front of it). *Blind samples* (``MapView.blind``): a sample
+   with no stereo depth within ``reach`` counts too where it lies in a *hole* of the depth
+   (missing pixels that measured ones enclose, :func:`depth_holes`: dark glass, a blank
+   patch; not the open background, which reaches the image's border) and the cell clearly
+   faces the camera (its outward direction over ``BLIND_RADIUS`` cells at least
+   ``BLIND_OUTWARD`` cells long and towards the camera): there the map's front cell is the
+   only surface the pixel can show. Elsewhere no depth is still no evidence. The colour is
+   the median of the samples that count, as for the window.
 4. *Facing the camera* (the orientation rule, ``orientation``, off by default): the cell's
    outward direction estimated as its centre minus the centroid of the occupied cells
    around it (``'local'``: a cube of ``2 * orientation_radius + 1`` cells, from
@@ -67,6 +72,7 @@ from typing import Literal, NamedTuple, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Bools, Floats, Matrix3, Points, Vector3
 from inhand_common.rotations import quaternion_to_matrix
@@ -74,7 +80,7 @@ from inhand_stereo.camera_model import CameraModel
 from inhand_stereo.texture_kernels import front_pixels, map_depth, window_pixels
 
 __all__ = ['CellTexture', 'MapView', 'Orientation', 'Pose', 'Projection', 'Window',
-           'facing_camera', 'map_to_rectified', 'project_cells', 'texture_cells']
+           'depth_holes', 'facing_camera', 'map_to_rectified', 'project_cells', 'texture_cells']
 
 Pose: TypeAlias = tuple[ArrayLike, ArrayLike]     # (position (3,) m, quaternion (4,) x y z w)
 Orientation: TypeAlias = Literal['local', 'centroid', 'none']
@@ -150,10 +156,10 @@ def _project_rectified(rectified: Points, P: Floats) -> Projection:
 
 def facing_camera(centres: Points, resolution: float, camera_position: Vector3,
                   orientation: Orientation = 'local', radius: int = 4,
-                  min_outward: float = 0.5) -> Bools:
+                  min_outward: float = 0.5, flat: bool = True) -> Bools:
     """False for cells whose outward direction (centre minus the centroid of the occupied
-    cells around it) points away from ``camera_position`` (map frame); True elsewhere,
-    including where the neighbourhood is too flat to tell (direction shorter than
+    cells around it) points away from ``camera_position`` (map frame); True elsewhere;
+    ``flat`` where the neighbourhood is too flat to tell (direction shorter than
     ``min_outward`` cells). ``centres`` are the occupied cells (on the grid's lattice)."""
     count = len(centres)
     if orientation == 'none' or count == 0:
@@ -165,8 +171,8 @@ def facing_camera(centres: Points, resolution: float, camera_position: Vector3,
     else:
         raise ValueError(f"orientation must be 'local', 'centroid' or 'none', got {orientation!r}")
     towards = np.einsum('ij,ij->i', outward, camera_position - centres)
-    flat = np.einsum('ij,ij->i', outward, outward) < (min_outward * resolution) ** 2
-    facing: Bools = flat | (towards >= 0.0)
+    unknown = np.einsum('ij,ij->i', outward, outward) < (min_outward * resolution) ** 2
+    facing: Bools = np.where(unknown, flat, towards >= 0.0)
     return facing
 
 
@@ -237,6 +243,15 @@ class MapView(NamedTuple):
     tolerance: float = 1.0    # cells: the stereo depth within this of the cell's centre depth
     ahead: float = 0.5        # cells: another occupied cell this much nearer hides the pixel
     reach: float = 4.0        # px: a pixel without depth takes the nearest one's within this
+    blind: bool = True        # a sample with no depth within reach counts, for a cell that
+                              # clearly faces the camera (BLIND_RADIUS, BLIND_OUTWARD)
+
+
+# Where stereo measured nothing, the map's front cell counts only if its outward direction
+# (facing_camera, 'local') over this cube is at least BLIND_OUTWARD cells long and points to
+# the camera: chosen on the texture sessions' tune set and the bundled bags (docs/stereo.md)
+BLIND_RADIUS = 6
+BLIND_OUTWARD = 1.0
 
 
 MAP_VIEW = MapView()
@@ -247,7 +262,8 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
                   depth: NDArray[np.floating], *, window: Window = WINDOW,
                   samples: int = SAMPLES, min_samples: int = MIN_SAMPLES, fill: float = FILL,
                   orientation: Orientation = 'none', orientation_radius: int = 4,
-                  map_view: MapView | None = MAP_VIEW) -> CellTexture:
+                  map_view: MapView | None = MAP_VIEW,
+                  depth_hole_mask: NDArray[np.bool_] | None = None) -> CellTexture:
     """Colour of each occupied cell where the rectified left camera saw it (module doc).
 
     ``centres`` (N, 3) occupied cell centres in the map frame; ``resolution`` the cell edge
@@ -258,7 +274,8 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     tracker frame, each ``(position, quaternion xyzw)``; ``depth`` (H, W) metres along the
     rectified optical axis, NaN or inf where stereo measured nothing. Options (module doc):
     ``window``, ``samples`` per side of the footprint, ``min_samples`` in the window,
-    ``fill`` (px), ``orientation`` and ``map_view`` (None: the window rule alone). Returns
+    ``fill`` (px), ``orientation`` and ``map_view`` (None: the window rule alone);
+    ``depth_hole_mask``: :func:`depth_holes` of ``depth`` when the caller keeps it. Returns
     colours (N, 3) uint8 (0 where not textured) and the textured mask (N,).
     """
     points = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
@@ -272,6 +289,9 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
                                      and map_view.reach >= 0.0):
         raise ValueError(f'map_view: min_samples in [1, samples^2], tolerance, ahead and '
                          f'reach >= 0, got {map_view}')
+    if depth_hole_mask is not None and depth_hole_mask.shape != depth.shape:
+        raise ValueError(f'depth_hole_mask is {depth_hole_mask.shape}, the depth '
+                         f'{depth.shape}: they must be the same image')
     colours = np.zeros((len(points), 3), dtype=np.uint8)
     textured = np.zeros(len(points), dtype=bool)
     matrix, offset = map_to_rectified(camera_pose, object_pose, R_left)
@@ -304,10 +324,19 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
         front = np.empty(depth.shape, dtype=np.float64)
         map_depth(projection.u, projection.v, projection.z, P, float(resolution), front)
         found = np.empty((len(rest), samples * samples), dtype=np.int64)
+        blind = np.zeros(len(rest), dtype=bool)
+        holes = np.zeros(depth.shape, dtype=bool)
+        if map_view.blind:
+            holes = depth_holes(stereo_depth) if depth_hole_mask is None else depth_hole_mask
+            near = _footprint_meets(holes, u[rest], v[rest], z[rest], P, resolution) \
+                if holes.any() else np.zeros(len(rest), dtype=bool)
+            if near.any():
+                blind[near] = _facing_clearly(points, cells[rest[near]], resolution,
+                                              -matrix.T @ offset)
         counts[rest] = front_pixels(
             u[rest], v[rest], z[rest], front, stereo_depth, P, float(resolution), int(samples),
             map_view.ahead * resolution, map_view.tolerance * resolution,
-            float(map_view.reach), found)
+            float(map_view.reach), blind, holes, found)
         pixels[rest] = found
         seen[rest] = counts[rest] >= map_view.min_samples
     textured[cells[seen]] = True
@@ -315,6 +344,53 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     owners = np.repeat(np.arange(int(np.count_nonzero(seen))), counts[seen])
     colours[textured] = _median_colours(image, pixels[seen][used], owners)
     return CellTexture(colours, textured)
+
+
+def depth_holes(depth: NDArray[np.floating]) -> NDArray[np.bool_]:
+    """The pixels without depth (NaN, inf, <= 0) that measured depth encloses: a surface
+    stereo found nothing on (weak texture, dark glass), not the open background around
+    the object, which reaches the image's border. (What ``ndimage.binary_fill_holes``
+    gives, from one labelling of the missing pixels: half its time.)"""
+    missing = ~(np.isfinite(depth) & (depth > 0.0))
+    labels, count = ndimage.label(missing)
+    reaches_border = np.zeros(count + 1, dtype=bool)
+    reaches_border[0] = True                       # label 0: the measured pixels
+    reaches_border[labels[0]] = reaches_border[labels[-1]] = True
+    reaches_border[labels[:, 0]] = reaches_border[labels[:, -1]] = True
+    holes: NDArray[np.bool_] = ~reaches_border[labels]
+    return holes
+
+
+def _footprint_meets(mask: NDArray[np.bool_], u: Floats, v: Floats, z: Floats, P: Floats,
+                     resolution: float) -> Bools:
+    """Whether each cell's footprint (its face seen at its depth, as the kernels sample
+    it) holds a pixel of ``mask``: one lookup per cell in the mask's summed-area table."""
+    height, width = mask.shape
+    table = np.zeros((height + 1, width + 1), dtype=np.int64)
+    np.cumsum(np.cumsum(mask, axis=0), axis=1, out=table[1:, 1:])
+    half_u, half_v = P[0, 0] / z * resolution / 2.0, P[1, 1] / z * resolution / 2.0
+    c0 = np.clip(np.floor(u - half_u + 0.5), 0, width).astype(np.intp)
+    c1 = np.clip(np.floor(u + half_u + 0.5) + 1, 0, width).astype(np.intp)
+    r0 = np.clip(np.floor(v - half_v + 0.5), 0, height).astype(np.intp)
+    r1 = np.clip(np.floor(v + half_v + 0.5) + 1, 0, height).astype(np.intp)
+    inside = table[r1, c1] - table[r0, c1] - table[r1, c0] + table[r0, c0]
+    meets: Bools = inside > 0
+    return meets
+
+
+def _facing_clearly(points: Points, which: NDArray[np.intp], resolution: float,
+                    camera_position: Vector3) -> Bools:
+    """Whether the cells ``which`` of ``points`` clearly face the camera (outward over
+    ``BLIND_RADIUS`` at least ``BLIND_OUTWARD`` cells long, towards it), from the occupied
+    cells around them only: a few hundred cells over a hole, not the whole map's tables."""
+    reach = (BLIND_RADIUS + 0.5) * resolution
+    low, high = points[which].min(axis=0) - reach, points[which].max(axis=0) + reach
+    around = np.flatnonzero(np.all((points >= low) & (points <= high), axis=1))
+    facing = facing_camera(points[around], resolution, camera_position, 'local',
+                           BLIND_RADIUS, BLIND_OUTWARD, flat=False)
+    position = np.searchsorted(around, which)        # ``which`` lies inside ``around``
+    clearly: Bools = facing[position]
+    return clearly
 
 
 def _candidates(points: Points, projection: Projection, resolution: float, matrix: Matrix3,

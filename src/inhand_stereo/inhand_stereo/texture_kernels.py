@@ -88,13 +88,17 @@ def map_depth(u: Floats, v: Floats, z: Floats, P: Floats, resolution: float,
 @_compiled
 def front_pixels(u: Floats, v: Floats, z: Floats, front: Floats, depth: NDArray[np.float32],
                  P: Floats, resolution: float, samples: int, ahead: float, tolerance: float,
-                 reach: float, pixels: NDArray[np.int64]) -> NDArray[np.int64]:
+                 reach: float, blind: NDArray[np.bool_], holes: NDArray[np.bool_],
+                 pixels: NDArray[np.int64]
+                 ) -> NDArray[np.int64]:
     """For each cell (its projection ``u, v, z``): the flat indices of the pixels of its
     ``samples`` x ``samples`` footprint where it is the map's front cell (``front``, from
     :func:`map_depth`, is no nearer than ``z - ahead``) and the stereo depth there (or of
-    the nearest pixel with one within ``reach`` px) lies within ``tolerance`` of ``z``:
-    written to ``pixels[k, :count]`` (a filled sample: the pixel that gave it its depth, as
-    in :func:`window_pixels`); returns the counts (K,)."""
+    the nearest pixel with one within ``reach`` px) lies within ``tolerance`` of ``z``, or,
+    where ``blind[k]`` (the cell clearly faces the camera), there is no depth within
+    ``reach`` and the pixel is in one of the depth's ``holes`` (H, W): written to
+    ``pixels[k, :count]`` (a filled sample: the pixel that gave it its depth, as in
+    :func:`window_pixels`; a blind one: its own); returns the counts (K,)."""
     height, width = depth.shape
     counts = np.zeros(len(u), dtype=np.int64)
     cols = np.empty(samples, dtype=np.int64)
@@ -111,7 +115,9 @@ def front_pixels(u: Floats, v: Floats, z: Floats, front: Floats, depth: NDArray[
                 if col < 0 or col >= width or front[row, col] < z[k] - ahead:
                     continue
                 d, pixel = _depth_at(depth, row, col, reach)
-                if d <= 0.0 or abs(d - z[k]) > tolerance:
+                if d <= 0.0 and blind[k] and holes[row, col]:
+                    pixel = row * width + col     # no depth near: the map's front, its pixel
+                elif d <= 0.0 or abs(d - z[k]) > tolerance:
                     continue
                 pixels[k, count] = pixel      # filled: the colour that goes with that depth
                 count += 1
