@@ -532,6 +532,35 @@ def test_a_hole_in_the_stereo_depth_on_a_face_the_map_shows_gets_the_image_colou
                       depth_hole_mask=holes[1:])
 
 
+def test_a_face_whose_stereo_depth_reads_behind_it_gets_its_colour_from_the_map_view():
+    """Dark glass: stereo measures the face, but 3 cells too far. The map's front cells
+    there take the colour (``MapView.behind``, 4 cells); with ``behind`` at the tolerance
+    (a cell) they do not. A measured point that lies in another occupied cell is that
+    cell's surface: the box's back faces stay unpainted."""
+    cam = camera()
+    box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))          # the -x face straight on
+    image, depth = render([box], cam, pose, IDENTITY)
+    cells = box.cells()
+    visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
+    u, v, _ = project_cells(cells, cam, cam.R, pose, IDENTITY)
+    centre_u, centre_v = np.median(u[visible]), np.median(v[visible])
+    rows, cols = np.mgrid[:HEIGHT, :WIDTH]
+    patch = (np.abs(rows - centre_v) < 28) & (np.abs(cols - centre_u) < 28)   # the face: +-36
+    far = np.where(patch, depth + 3 * RES, depth).astype(np.float32)
+    in_patch = visible & (np.abs(v - centre_v) < 22) & (np.abs(u - centre_u) < 22)
+    assert in_patch.sum() > 6
+    strict = texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, far,
+                           map_view=MapView(behind=MapView().tolerance))
+    assert not strict.textured[in_patch].any()
+    colours, textured = texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, far)
+    assert textured[in_patch].all()
+    assert np.abs(colours[in_patch].astype(int) - expected[in_patch].astype(int)).max() <= 3
+    assert not textured[hidden].any()
+    with pytest.raises(ValueError, match='behind'):
+        texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, far,
+                      map_view=MapView(behind=0.5))
+
+
 def test_mono_images_give_grey_and_an_empty_map_gives_nothing():
     cam = camera()
     box, pose = box_scene()

@@ -19,7 +19,7 @@ then the map's cells against the truth, as ``map_metrics`` scores them:
 * *back faces*: textured cells more than one cell from any surface the camera saw, as a
   share of the occupied cells it did not see (target <= 1 %); *unseen textured*: all
   textured cells the truth does not count as seen (most lie next to the seen surface);
-* *colour error*: the median distance (0-255 RGB) between a textured cell's colour and
+* *colour error*: the median and 95th percentile distance (0-441 RGB) between a textured cell's colour and
   the truth's colour there.
 
 Two sets of sessions: ``tune`` (the sessions the texture rule's defaults were chosen on)
@@ -130,7 +130,7 @@ def scores(bag: Path, folder: Path) -> dict:
     return {'seen': int(seen.sum()), 'textured': int(np.count_nonzero(seen & textured)),
             'unseen': unseen, 'unseen_textured': int(np.count_nonzero(textured & ~seen)),
             'back': int(np.count_nonzero(textured & ~seen & (far > resolution))),
-            'colour': colour['colour_error_median']}
+            'colour': colour['colour_error_median'], 'p95': colour['colour_error_p95']}
 
 
 KEYS = ('seen', 'textured', 'unseen', 'back', 'unseen_textured')
@@ -138,7 +138,8 @@ KEYS = ('seen', 'textured', 'unseen', 'back', 'unseen_textured')
 
 def _row(result: dict) -> str:
     unseen = max(int(result['unseen']), 1)
-    colour = f" {result['colour']:12.1f}" if 'colour' in result else ''
+    colour = (f" {result['colour']:6.1f} / {result['p95']:5.1f}" if 'colour' in result
+              else '')
     return (f"{result['seen']:5d} {result['textured'] / result['seen']:9.3f} "
             f"{result['back']:5d} ({result['back'] / unseen:6.2%}) "
             f"{result['unseen_textured']:5d} ({result['unseen_textured'] / unseen:6.2%})"
@@ -174,7 +175,7 @@ def main() -> int:
         folder = args.keep or Path(scratch)
         folder.mkdir(parents=True, exist_ok=True)
         print(f'{"session":14s} {"seen":>5s} {"textured":>9s} {"back faces":>16s} '
-              f'{"unseen textured":>17s} {"colour error":>12s}', flush=True)
+              f'{"unseen textured":>17s} {"colour error median / p95":>14s}', flush=True)
         for set_name in names:
             total = np.zeros(5, dtype=np.int64)
             for name, options in SETS[set_name].items():

@@ -29,8 +29,13 @@ rectified with ``R_left``) and is projected with the rectified ``P``. Then:
    face, seen at its depth, is drawn into a depth image of the map (the nearest cell wins);
    a footprint sample counts for a cell when no other cell is in front of it there by more
    than ``MapView.ahead`` (half a cell) and the stereo depth there (or of the nearest pixel
-   with one within ``MapView.reach``, 4 px) lies within ``MapView.tolerance`` (a cell) of
-   the cell's depth. At least ``MapView.min_samples`` (6 of 49) must count. This takes
+   with one within ``MapView.reach``, 4 px) lies no more than ``MapView.tolerance`` (a
+   cell) in front of the cell's depth and no more than ``MapView.behind`` (4 cells) behind
+   it, unless that measured point lies in another occupied cell (then it is that cell's
+   surface, as for the window). At least ``MapView.min_samples`` (6 of 49) must count.
+   Behind: the camera looks through where the map's front cell is, so the cell is off the
+   surface (a hovering finger's layer) or stereo reads the surface too far (dark glass
+   reads 5-10 mm behind it); either way the pixel shows that cell's surface. This takes
    the cells a touch map holds a cell or so *inside* the surface (a pressing finger, a
    pad's centre), whose measured surface lies in the free cell in front: the window does
    not reach them, and nothing of the map hides them. A thin part's back stays unpainted
@@ -68,6 +73,7 @@ noise and to the edges of occluders). Cells that are not textured get colour 0, 
 
 from __future__ import annotations
 
+import math
 from typing import Literal, NamedTuple, TypeAlias
 
 import numpy as np
@@ -243,6 +249,8 @@ class MapView(NamedTuple):
     tolerance: float = 1.0    # cells: the stereo depth within this of the cell's centre depth
     ahead: float = 0.5        # cells: another occupied cell this much nearer hides the pixel
     reach: float = 4.0        # px: a pixel without depth takes the nearest one's within this
+    behind: float = 4.0       # cells: a stereo depth up to this far behind the cell counts
+                              # too, unless its point lies in another occupied cell
     blind: bool = True        # a sample with no depth within reach counts, for a cell that
                               # clearly faces the camera (BLIND_RADIUS, BLIND_OUTWARD)
 
@@ -286,9 +294,10 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
                          'samples^2], fill >= 0, the window 0-2 cells each way')
     if map_view is not None and not (1 <= map_view.min_samples <= samples * samples
                                      and map_view.tolerance >= 0.0 and map_view.ahead >= 0.0
-                                     and map_view.reach >= 0.0):
+                                     and map_view.reach >= 0.0
+                                     and map_view.tolerance <= map_view.behind <= 10.0):
         raise ValueError(f'map_view: min_samples in [1, samples^2], tolerance, ahead and '
-                         f'reach >= 0, got {map_view}')
+                         f'reach >= 0, behind in [tolerance, 10], got {map_view}')
     if depth_hole_mask is not None and depth_hole_mask.shape != depth.shape:
         raise ValueError(f'depth_hole_mask is {depth_hole_mask.shape}, the depth '
                          f'{depth.shape}: they must be the same image')
@@ -304,19 +313,23 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
         return CellTexture(colours, textured)
     u, v, z = projection.u[cells], projection.v[cells], projection.z[cells]
     stereo_depth = np.ascontiguousarray(depth, dtype=np.float32)
-    ijk, occupied = _lattice(points, resolution, pad=3)   # the kernel looks 3 cells around
+    behind = map_view.behind if map_view is not None else 0.0
+    # the kernels look this many cells around a cell for the one a measured point lies in
+    pad = max(3, math.ceil(max(behind, window.behind) + 1.5))
+    ijk, occupied = _lattice(points, resolution, pad=pad)
     strides = (np.array(occupied.strides) // occupied.itemsize).astype(np.int64)
     inverse = np.linalg.inv(P[:, :3]).astype(np.float64)
     half = resolution / 2.0
     pixels = np.empty((len(cells), samples * samples), dtype=np.int64)
+    homes = np.ravel_multi_index(tuple(ijk[cells].T), occupied.shape).astype(np.int64)
+    lattice = occupied.reshape(-1)
+    to_map = np.ascontiguousarray(matrix, dtype=np.float64)
+    shift = np.asarray(inverse @ P[:, 3], dtype=np.float64)
     counts = window_pixels(
-        u, v, z, np.ascontiguousarray(rectified[cells]),
-        np.ravel_multi_index(tuple(ijk[cells].T), occupied.shape).astype(np.int64),
-        occupied.reshape(-1), strides, np.ascontiguousarray(matrix, dtype=np.float64),
-        stereo_depth, P, inverse, np.asarray(inverse @ P[:, 3], dtype=np.float64),
-        float(resolution), int(samples), -half - window.in_front * resolution,
-        half + window.behind * resolution, (0.5 + window.beside) * resolution, float(fill),
-        pixels)
+        u, v, z, np.ascontiguousarray(rectified[cells]), homes, lattice, strides, to_map,
+        stereo_depth, P, inverse, shift, float(resolution), pad, int(samples),
+        -half - window.in_front * resolution, half + window.behind * resolution,
+        (0.5 + window.beside) * resolution, float(fill), pixels)
     seen = counts >= min_samples
     rest = np.flatnonzero(~seen)
     if map_view is not None and len(rest):
@@ -334,8 +347,10 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
                 blind[near] = _facing_clearly(points, cells[rest[near]], resolution,
                                               -matrix.T @ offset)
         counts[rest] = front_pixels(
-            u[rest], v[rest], z[rest], front, stereo_depth, P, float(resolution), int(samples),
-            map_view.ahead * resolution, map_view.tolerance * resolution,
+            u[rest], v[rest], z[rest], np.ascontiguousarray(rectified[cells[rest]]),
+            homes[rest], lattice, strides, to_map, front, stereo_depth, P, inverse, shift,
+            float(resolution), pad, int(samples), map_view.ahead * resolution,
+            map_view.tolerance * resolution, behind * resolution,
             float(map_view.reach), blind, holes, found)
         pixels[rest] = found
         seen[rest] = counts[rest] >= map_view.min_samples

@@ -85,16 +85,52 @@ def map_depth(u: Floats, v: Floats, z: Floats, P: Floats, resolution: float,
                     depth[row, col] = z[k]
 
 
+@_inlined
+def _point_offset(pixel: int, d: float, width: int, inverse: Floats, shift: Floats,
+                  cx: float, cy: float, cz: float) -> tuple[float, float, float]:
+    """The measured point of ``pixel`` at depth ``d`` (rectified camera frame; ``inverse``
+    and ``shift`` undo ``P``) minus the cell centre ``c``."""
+    pr, pc = pixel // width, pixel % width
+    ox = (inverse[0, 0] * pc + inverse[0, 1] * pr + inverse[0, 2]) * d - shift[0] - cx
+    oy = (inverse[1, 0] * pc + inverse[1, 1] * pr + inverse[1, 2]) * d - shift[1] - cy
+    oz = (inverse[2, 0] * pc + inverse[2, 1] * pr + inverse[2, 2]) * d - shift[2] - cz
+    return ox, oy, oz
+
+
+@_inlined
+def _in_another_cell(ox: float, oy: float, oz: float, home: int, occupied: NDArray[np.bool_],
+                     strides: NDArray[np.int64], to_map: Floats, resolution: float,
+                     pad: int) -> bool:
+    """Whether a point ``o`` off a cell's centre (camera frame; ``to_map`` rotates to the
+    map's axes) lies in another occupied cell of the lattice (``home``: the cell's flat
+    index; ``pad`` free cells around every occupied one: a point farther along an axis is
+    taken at that distance, which is free or the lattice's edge)."""
+    offset = 0
+    moved = False
+    for axis in range(3):
+        step = round((ox * to_map[0, axis] + oy * to_map[1, axis] + oz * to_map[2, axis])
+                     / resolution)
+        step = min(pad, max(-pad, step))
+        if step != 0:
+            moved = True
+        offset += step * strides[axis]
+    return bool(moved and occupied[home + offset])
+
+
 @_compiled
-def front_pixels(u: Floats, v: Floats, z: Floats, front: Floats, depth: NDArray[np.float32],
-                 P: Floats, resolution: float, samples: int, ahead: float, tolerance: float,
-                 reach: float, blind: NDArray[np.bool_], holes: NDArray[np.bool_],
-                 pixels: NDArray[np.int64]
-                 ) -> NDArray[np.int64]:
+def front_pixels(u: Floats, v: Floats, z: Floats, centres: Floats, homes: NDArray[np.int64],
+                 occupied: NDArray[np.bool_], strides: NDArray[np.int64], to_map: Floats,
+                 front: Floats, depth: NDArray[np.float32], P: Floats, inverse: Floats,
+                 shift: Floats, resolution: float, pad: int, samples: int, ahead: float,
+                 tolerance: float, behind: float, reach: float, blind: NDArray[np.bool_],
+                 holes: NDArray[np.bool_], pixels: NDArray[np.int64]) -> NDArray[np.int64]:
     """For each cell (its projection ``u, v, z``): the flat indices of the pixels of its
     ``samples`` x ``samples`` footprint where it is the map's front cell (``front``, from
     :func:`map_depth`, is no nearer than ``z - ahead``) and the stereo depth there (or of
-    the nearest pixel with one within ``reach`` px) lies within ``tolerance`` of ``z``, or,
+    the nearest pixel with one within ``reach`` px) lies at most ``tolerance`` in front of
+    ``z`` and at most ``behind`` beyond it, its point (``centres``, ``homes``, ``occupied``,
+    ``strides``, ``to_map``, ``inverse``, ``shift``, ``pad`` as for :func:`window_pixels`)
+    not in another occupied cell when it is more than ``tolerance`` beyond, or,
     where ``blind[k]`` (the cell clearly faces the camera), there is no depth within
     ``reach`` and the pixel is in one of the depth's ``holes`` (H, W): written to
     ``pixels[k, :count]`` (a filled sample: the pixel that gave it its depth, as in
@@ -115,10 +151,19 @@ def front_pixels(u: Floats, v: Floats, z: Floats, front: Floats, depth: NDArray[
                 if col < 0 or col >= width or front[row, col] < z[k] - ahead:
                     continue
                 d, pixel = _depth_at(depth, row, col, reach)
-                if d <= 0.0 and blind[k] and holes[row, col]:
+                if d <= 0.0:
+                    if not (blind[k] and holes[row, col]):
+                        continue
                     pixel = row * width + col     # no depth near: the map's front, its pixel
-                elif d <= 0.0 or abs(d - z[k]) > tolerance:
+                elif z[k] - d > tolerance or d - z[k] > behind:
                     continue
+                elif d - z[k] > tolerance:
+                    # farther than the cell: its own surface unless it lies in another cell
+                    ox, oy, oz = _point_offset(pixel, d, width, inverse, shift, centres[k, 0],
+                                               centres[k, 1], centres[k, 2])
+                    if _in_another_cell(ox, oy, oz, homes[k], occupied, strides, to_map,
+                                        resolution, pad):
+                        continue
                 pixels[k, count] = pixel      # filled: the colour that goes with that depth
                 count += 1
         counts[k] = count
@@ -129,11 +174,11 @@ def front_pixels(u: Floats, v: Floats, z: Floats, front: Floats, depth: NDArray[
 def window_pixels(u: Floats, v: Floats, z: Floats, centres: Floats, homes: NDArray[np.int64],
                   occupied: NDArray[np.bool_], strides: NDArray[np.int64], to_map: Floats,
                   depth: NDArray[np.float32], P: Floats, inverse: Floats, shift: Floats,
-                  resolution: float, samples: int, near: float, far: float, across: float,
-                  fill: float, pixels: NDArray[np.int64]) -> NDArray[np.int64]:
+                  resolution: float, pad: int, samples: int, near: float, far: float,
+                  across: float, fill: float, pixels: NDArray[np.int64]) -> NDArray[np.int64]:
     """For each cell (its projection ``u, v, z``, its centre in the rectified camera frame
     ``centres`` (K, 3), its flat index ``homes`` in the lattice ``occupied`` (flat bool,
-    ``strides`` per map axis, three free cells around every occupied one)): the flat
+    ``strides`` per map axis, ``pad`` free cells around every occupied one)): the flat
     indices of the pixels of its ``samples`` x ``samples`` footprint whose measured point
     lies in its window, written to ``pixels[k, :count]`` (a filled sample: the pixel that
     gave it its depth, whose colour goes with that point); returns the counts (K,).
@@ -167,28 +212,14 @@ def window_pixels(u: Floats, v: Floats, z: Floats, centres: Floats, homes: NDArr
                     continue
                 # the measured point of the pixel that holds the depth (this one or, filled,
                 # its neighbour)
-                pr, pc = pixel // width, pixel % width
-                ox = (inverse[0, 0] * pc + inverse[0, 1] * pr + inverse[0, 2]) * d \
-                    - shift[0] - cx
-                oy = (inverse[1, 0] * pc + inverse[1, 1] * pr + inverse[1, 2]) * d \
-                    - shift[1] - cy
-                oz = (inverse[2, 0] * pc + inverse[2, 1] * pr + inverse[2, 2]) * d \
-                    - shift[2] - cz
+                ox, oy, oz = _point_offset(pixel, d, width, inverse, shift, cx, cy, cz)
                 along = ox * sx + oy * sy + oz * sz
                 if along < near or along > far:
                     continue
                 if ox * ox + oy * oy + oz * oz - along * along > across2:
                     continue
-                offset = 0
-                moved = False
-                for axis in range(3):
-                    step = round((ox * to_map[0, axis] + oy * to_map[1, axis]
-                                  + oz * to_map[2, axis]) / resolution)
-                    step = min(3, max(-3, step))
-                    if step != 0:
-                        moved = True
-                    offset += step * strides[axis]
-                if moved and occupied[homes[k] + offset]:
+                if _in_another_cell(ox, oy, oz, homes[k], occupied, strides, to_map,
+                                    resolution, pad):
                     continue
                 pixels[k, count] = pixel
                 count += 1
