@@ -489,20 +489,29 @@ def test_no_stereo_depth_means_not_textured():
     assert np.array_equal(part.colours[right], full.colours[right])
 
 
+def face_on_scene():
+    """The box with its -x face straight to the camera, its cells, which are seen (and
+    their colours) or hidden, their pixels, the face's middle pixel, the image's pixel
+    grid."""
+    cam = camera()
+    box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))
+    image, depth = render([box], cam, pose, IDENTITY)
+    cells = box.cells()
+    visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
+    u, v, _ = project_cells(cells, cam, cam.R, pose, IDENTITY)
+    rows, cols = np.mgrid[:HEIGHT, :WIDTH]
+    return (cam, pose, image, depth, cells, visible, expected, hidden, u, v,
+            np.median(u[visible]), np.median(v[visible]), rows, cols)
+
+
 def test_a_hole_in_the_stereo_depth_on_a_face_the_map_shows_gets_the_image_colour():
     """Dark glass or a blank patch: stereo finds nothing in the middle of a face it sees
     all around. Cells there that the map shows in front and that clearly face the camera
     take their own pixels' colour (``MapView.blind``); with ``blind`` off, none does. The
     hidden faces stay unpainted, and so does what lies beyond the object's outline, where
     the missing depth reaches the image's border (the sphere and no-depth tests)."""
-    cam = camera()
-    box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))          # the -x face straight on
-    image, depth = render([box], cam, pose, IDENTITY)
-    cells = box.cells()
-    visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
-    u, v, _ = project_cells(cells, cam, cam.R, pose, IDENTITY)
-    centre_u, centre_v = np.median(u[visible]), np.median(v[visible])
-    rows, cols = np.mgrid[:HEIGHT, :WIDTH]
+    (cam, pose, image, depth, cells, visible, expected, hidden, u, v, centre_u, centre_v,
+     rows, cols) = face_on_scene()
     hole = (rows - centre_v) ** 2 + (cols - centre_u) ** 2 < 40.0 ** 2
     holed = np.where(hole, np.nan, depth).astype(np.float32)
     assert np.isfinite(depth[hole]).all()                        # the hole is on the face
@@ -537,14 +546,8 @@ def test_a_face_whose_stereo_depth_reads_behind_it_gets_its_colour_from_the_map_
     there take the colour (``MapView.behind``, 4 cells); with ``behind`` at the tolerance
     (a cell) they do not. A measured point that lies in another occupied cell is that
     cell's surface: the box's back faces stay unpainted."""
-    cam = camera()
-    box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))          # the -x face straight on
-    image, depth = render([box], cam, pose, IDENTITY)
-    cells = box.cells()
-    visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
-    u, v, _ = project_cells(cells, cam, cam.R, pose, IDENTITY)
-    centre_u, centre_v = np.median(u[visible]), np.median(v[visible])
-    rows, cols = np.mgrid[:HEIGHT, :WIDTH]
+    (cam, pose, image, depth, cells, visible, expected, hidden, u, v, centre_u, centre_v,
+     rows, cols) = face_on_scene()
     patch = (np.abs(rows - centre_v) < 28) & (np.abs(cols - centre_u) < 28)   # the face: +-36
     far = np.where(patch, depth + 3 * RES, depth).astype(np.float32)
     in_patch = visible & (np.abs(v - centre_v) < 22) & (np.abs(u - centre_u) < 22)
