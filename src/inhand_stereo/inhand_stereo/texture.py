@@ -32,7 +32,7 @@ rectified with ``R_left``) and is projected with the rectified ``P``. Then:
    with one within ``MapView.reach``, 4 px) lies no more than ``MapView.tolerance`` (a
    cell) in front of the cell's depth and no more than ``MapView.behind`` (4 cells) behind
    it, unless that measured point lies in another occupied cell (then it is that cell's
-   surface, as for the window). At least ``MapView.min_samples`` (6 of 49) must count.
+   surface, as for the window). At least ``MapView.min_samples`` (5 of 49) must count.
    Behind: the camera looks through where the map's front cell is, so the cell is off the
    surface (a hovering finger's layer) or stereo reads the surface too far (dark glass
    reads 5-10 mm behind it); either way the pixel shows that cell's surface. This takes
@@ -245,7 +245,7 @@ class MapView(NamedTuple):
     """The second rule (module doc, 3): where the map's own cells say a cell is in front,
     and the stereo depth agrees with the cell's depth. In cells, except ``reach`` (px)."""
 
-    min_samples: int = 6      # of the footprint's 49: where it is in front and depth agrees
+    min_samples: int = 5      # of the footprint's 49: where it is in front and depth agrees
     tolerance: float = 1.0    # cells: the stereo depth within this of the cell's centre depth
     ahead: float = 0.5        # cells: another occupied cell this much nearer hides the pixel
     reach: float = 4.0        # px: a pixel without depth takes the nearest one's within this
