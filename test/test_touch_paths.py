@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from inhand_common.parameters import ParameterError
-from inhand_mapping import map_io
+from inhand_mapping import map_io, touch_paths
 from inhand_mapping.mapping_config import load_parameters
 from inhand_mapping.occupancy import GridSpec, OccupancyGrid, SensorModel
 
@@ -114,6 +114,20 @@ def test_the_same_finger_back_within_the_visit_gap_is_the_same_visit_and_later_a
                                  np.concatenate([t1, t2, t3])), 0.01, 0.04)
     assert (once < 0.8).all()     # back and forth within 3 s: one visit
     assert (later > 0.8).all()    # back 3.5 s later: a second touch
+
+
+def test_a_visit_pushed_out_of_a_full_ring_is_forgotten_and_counted(monkeypatch):
+    # There and back over 10 cells within the gap, with room for 6 visits per finger. A
+    # visit found again moves to the front of the ring and takes the oldest slot, so coming
+    # back, cells 10, 9 and 8 are found (one visit, under 0.8) while pushing 5, 6 and 7 out;
+    # 1-7 are second visits (over 0.8), and each visit dropped within the gap is counted.
+    monkeypatch.setattr(touch_paths, 'VISITS_KEPT', 6)
+    there, t1 = stroke(START, END, 0.15, 30)
+    back, t2 = stroke(END, START, 0.15, 30, t0=t1[-1] + 0.5)
+    grid = mapped(np.concatenate([there, back]), np.concatenate([t1, t2]))
+    row = cells_along_x(grid, 0.0, 0.05)
+    assert (row[:7] > 0.8).all() and (row[7:] < 0.8).all()
+    assert grid._paths is not None and grid._paths.overwritten_visits > 0
 
 
 def test_a_transit_through_the_air_counts_for_little():

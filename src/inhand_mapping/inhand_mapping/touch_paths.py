@@ -260,9 +260,8 @@ class TouchPaths:
             held=np.zeros(fingers, dtype=np.int64), known=np.zeros(fingers, dtype=np.int64),
             walked=np.zeros(fingers, dtype=np.int64), newest=np.full(fingers, -np.inf))
 
-    @staticmethod
-    def _new_visits(fingers: int) -> kernels.PathVisits:
-        kept = VISITS_KEPT
+    def _new_visits(self, fingers: int) -> kernels.PathVisits:
+        kept, cells = VISITS_KEPT, self.geometry.n ** 3
         return kernels.PathVisits(
             cell=np.full((fingers, kept), -1, dtype=np.int64),
             last=np.full((fingers, kept), -np.inf), through=np.zeros((fingers, kept)),
@@ -271,4 +270,7 @@ class TouchPaths:
             v_dwell=np.zeros((fingers, kept)), worth=np.zeros((fingers, kept)),
             stay=np.zeros((fingers, kept), dtype=np.int64), anchor=np.full((fingers, 3), np.nan),
             stay_id=np.zeros(fingers, dtype=np.int64),
-            head=np.zeros(fingers, dtype=np.int64), current=np.full(fingers, -1, dtype=np.int64))
+            head=np.zeros(fingers, dtype=np.int64), current=np.full(fingers, -1, dtype=np.int64),
+            # a slot per finger and cell: a cell's visit found at once, not by scanning the
+            # ring (4 B a cell and finger; the grid keeps about 70 B a cell)
+            slot_of=np.zeros((fingers, cells), dtype=np.int32))
