@@ -28,7 +28,7 @@ rectified with ``R_left``) and is projected with the rectified ``P``. Then:
    finds too little, the map's own cells say what the camera faces. Every occupied cell's
    face, seen at its depth, is drawn into a depth image of the map (the nearest cell wins);
    a footprint sample counts for a cell when no other cell is in front of it there by more
-   than ``MapView.ahead`` (half a cell) and the stereo depth there (or of the nearest pixel
+   than ``MapView.ahead`` (0.7 of a cell) and the stereo depth there (or of the nearest pixel
    with one within ``MapView.reach``, 4 px) lies no more than ``MapView.tolerance`` (a
    cell) in front of the cell's depth and no more than ``MapView.behind`` (4 cells) behind
    it, unless that measured point lies in another occupied cell (then it is that cell's
@@ -247,7 +247,7 @@ class MapView(NamedTuple):
 
     min_samples: int = 5      # of the footprint's 49: where it is in front and depth agrees
     tolerance: float = 1.0    # cells: the stereo depth within this of the cell's centre depth
-    ahead: float = 0.5        # cells: another occupied cell this much nearer hides the pixel
+    ahead: float = 0.7        # cells: another occupied cell this much nearer hides the pixel
     reach: float = 4.0        # px: a pixel without depth takes the nearest one's within this
     behind: float = 4.0       # cells: a stereo depth up to this far behind the cell counts
                               # too, unless its point lies in another occupied cell
