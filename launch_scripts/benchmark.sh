@@ -30,7 +30,8 @@
 #   texture            texture of the occupied cells: time and visibility rules
 #                      (test/benchmarks/bench_texture.py: --quick, --runs N)
 #   texture-sessions   texture on touch maps of other hands and objects, against its
-#                      targets (test/benchmarks/bench_texture_sessions.py: --keep DIR, --set S)
+#                      targets, and on the validation sessions drawn by point splatting
+#                      (test/benchmarks/bench_texture_sessions.py: --keep DIR, --set S)
 #   quality            the touch map on simulated sessions: objects x stroke speeds x rates x
 #                      static/tracked, F / precision / recall / stray cells / touched surface
 #                      per session and a summary against the targets

@@ -7,6 +7,7 @@ tracker frame, the way the driver publishes them: all stations of a frame share 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,16 @@ def sphere_surface_points(count: int, radius: float, seed: int = 0) -> np.ndarra
     rng = np.random.default_rng(seed)
     v = rng.normal(size=(count, 3))
     return radius * v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def fibonacci_sphere(count: int, radius: float) -> np.ndarray:
+    """``count`` near-uniform points on a sphere of ``radius`` about the origin (a
+    Fibonacci lattice: evenly spaced, unlike random draws)."""
+    i = np.arange(count) + 0.5
+    polar = np.arccos(1.0 - 2.0 * i / count)
+    azimuth = math.pi * (1.0 + math.sqrt(5.0)) * i
+    return radius * np.stack([np.cos(azimuth) * np.sin(polar),
+                              np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1)
 
 
 def spot_tour(spots: np.ndarray) -> np.ndarray:

@@ -8,8 +8,6 @@ the rig's config (camera_pose), the map's colours, a stereo pair in the bag.
 
 from __future__ import annotations
 
-import math
-
 import cv2
 import numpy as np
 import pytest
@@ -18,7 +16,7 @@ from inhand_tools.commands.build_map import main as build_map_main
 from inhand_tools.commands.render_map import main as render_map_main
 from inhand_tools.map_cells import Lattice, MapCells, cell_indices
 from inhand_tools.map_figures import StereoCloud, draw_all, near_cells
-from pose_sessions import sphere_session, write_pose_bag
+from pose_sessions import fibonacci_sphere, sphere_session, write_pose_bag
 from ros_helpers import WORKSPACE
 
 H = 0.005
@@ -35,11 +33,7 @@ def hue_of(rgb) -> float:
 
 
 def sphere_points(count: int, radius: float = RADIUS) -> np.ndarray:
-    i = np.arange(count) + 0.5
-    polar = np.arccos(1.0 - 2.0 * i / count)
-    azimuth = math.pi * (1.0 + math.sqrt(5.0)) * i
-    return radius * np.stack([np.cos(azimuth) * np.sin(polar),
-                              np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1)
+    return fibonacci_sphere(count, radius)
 
 
 def sphere_cells(colours: bool = True, textured_side: bool = True) -> MapCells:

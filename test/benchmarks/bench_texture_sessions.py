@@ -23,7 +23,15 @@ then the map's cells against the truth, as ``map_metrics`` scores them:
   the truth's colour there.
 
 Two sets of sessions: ``tune`` (the sessions the texture rule's defaults were chosen on)
-and ``report`` (others, never used to choose); ``bundled``: the three bundled bags.
+and ``report`` (others, never used to choose); ``bundled``: the three bundled bags;
+``validation``: the independent generator's ten touch sessions
+(``../shared/data/validation_sessions``: other hands, other objects; a check, never used to
+choose; skipped with a line when the folder is absent), each seen from three sides (30
+degrees above, 0.42 m, azimuths -60, 30 and 120 degrees). Their bags hold no images, so each
+gets a stereo pair of its own surface samples, drawn by ``point_render.py`` (point
+splatting: not our simulator's renderer) with ``inhand_sim``'s plaster texture for scanned
+meshes, written with the bag's poses into a copy under the scratch folder, and a truth file
+in the simulator's format (the samples, the object's first pose, the pair's depth).
 """
 
 from __future__ import annotations
@@ -73,6 +81,90 @@ SETS = {
     },
     'bundled': {'cat_static': None, 'cat_moving': None, 'bottle_static': None},
 }
+
+
+VALIDATION = WORKSPACE.parent / 'shared' / 'data' / 'validation_sessions'
+VIEWS = (-60, 30, 120)    # camera azimuths (degrees), 30 degrees above, 0.42 m away
+VIEW_ELEVATION, VIEW_DISTANCE = 30.0, 0.42
+
+
+def validation_views() -> dict[str, tuple[str, int]]:
+    """Session and camera azimuth of each view of the validation set, by view name."""
+    names = sorted(path.name for path in VALIDATION.iterdir() if path.is_dir())
+    return {f'{name}_az{azimuth}': (name, azimuth) for name in names for azimuth in VIEWS}
+
+
+def validation_session(name: str, azimuth: int, folder: Path) -> Path:
+    """The validation session ``name`` with a stereo pair of its object from ``azimuth``,
+    as a bag and truth file under ``folder`` (made unless there)."""
+    import math
+
+    from point_render import render_samples
+    from rosbags.highlevel import AnyReader
+
+    from inhand_common.ground_truth import write_truth
+    from inhand_common.rotations import quaternion_to_matrix
+    from inhand_sim.stereo_rig import StereoRig
+    from inhand_sim.textures import surface_colour
+    bag = folder / f'{name}_az{azimuth}'
+    if bag.exists():
+        return bag
+    truth = np.load(VALIDATION / f'{name}_truth.npz')
+    surface = np.asarray(truth['surface'], dtype=float)
+    static = str(truth['mode']) == 'static'
+    with AnyReader([VALIDATION / name]) as reader:
+        first = next(reader.messages())[1]      # the pair: at the session's first stamp
+        position, quaternion = np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])
+        objects = [c for c in reader.connections if c.topic.endswith('/object/pose')]
+        if not static:      # the map frame: the object sensor at its first pose
+            connection, _, raw = next(reader.messages(connections=objects))
+            pose = reader.deserialize(raw, connection.msgtype).pose
+            position = np.array([pose.position.x, pose.position.y, pose.position.z])
+            quaternion = np.array([pose.orientation.x, pose.orientation.y,
+                                   pose.orientation.z, pose.orientation.w])
+    placed = surface @ quaternion_to_matrix(quaternion).T + position
+    up = math.radians(VIEW_ELEVATION)
+    direction = (math.cos(up) * math.cos(math.radians(azimuth)),
+                 math.cos(up) * math.sin(math.radians(azimuth)), -math.sin(up))
+    rig = StereoRig.looking_at(target=(placed.min(axis=0) + placed.max(axis=0)) / 2,
+                               direction=direction, distance=VIEW_DISTANCE)
+    albedo = surface_colour('scan', surface)
+    shot = render_samples(rig, placed, albedo, np.random.default_rng(1000 + azimuth))
+    _copy_with_pair(VALIDATION / name, bag, shot, first)
+    write_truth(Path(f'{bag}.truth.npz'), {
+        'object_name': name, 'static': static, 'rate': float(truth['rate']), 'seed': 0,
+        'settings': {'validation_session': name, 'camera_azimuth_deg': azimuth},
+        'surface_points': surface, 'surface_normals': np.zeros_like(surface),
+        'contacts': truth['contacts'], 'contact_times': truth['contact_t'],
+        'stray_points': np.zeros((0, 3)), 'stray_times': np.zeros(0),
+        'object_times': np.zeros(1), 'object_positions': position[None],
+        'object_quaternions': quaternion[None], 'surface_colours': albedo,
+        'camera_pose': np.asarray(shot.camera_pose), 'stereo_time': np.array(0.0),
+        'stereo_depth': shot.depth, 'stereo_object_mask': shot.mask,
+        'stereo_focal': np.array(float(shot.focal)),
+        'stereo_baseline': np.array(float(shot.baseline))})
+    return bag
+
+
+def _copy_with_pair(source: Path, bag: Path, shot, stamp_ns: int) -> None:
+    """``source``'s messages into the bag ``bag``, the stereo pair first, at ``stamp_ns``."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from inhand_common.mcap_integrity import stamp_bag_crcs
+    from inhand_sim.session import StereoConnections
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with AnyReader([source]) as reader, \
+            Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        StereoConnections(writer, store).write(shot, stamp_ns)
+        connections: dict = {}
+        for connection, stamp, raw in reader.messages():
+            if connection.topic not in connections:
+                connections[connection.topic] = writer.add_connection(
+                    connection.topic, connection.msgtype, typestore=store)
+            writer.write(connections[connection.topic], stamp, raw)
+    stamp_bag_crcs(bag)
 
 
 def session(name: str, options: list[str] | None, folder: Path) -> Path:
@@ -146,10 +238,19 @@ def _row(result: dict) -> str:
             f'{colour}')
 
 
+def _sessions(set_name: str, folder: Path):
+    """(name, a call making and returning its bag) of each session of the set."""
+    if set_name == 'validation':
+        return [(view, lambda pair=pair: validation_session(*pair, folder))
+                for view, pair in validation_views().items()]
+    return [(name, lambda name=name, options=options: session(name, options, folder))
+            for name, options in SETS[set_name].items()]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--keep', type=Path, help='keep (and reuse) the sessions here')
-    parser.add_argument('--set', choices=[*SETS, 'all'], default='all')
+    parser.add_argument('--set', choices=[*SETS, 'validation', 'all'], default='all')
     parser.add_argument('--map-view', metavar='off|MIN,TOLERANCE,REACH[,AHEAD[,BLIND]]',
                         help="texture_cells' second rule instead of its default (MapView): off, "
                         'or its min_samples, tolerance (cells), reach (px), ahead (cells) '
@@ -170,17 +271,21 @@ def main() -> int:
         assert texture_cells.__kwdefaults__ is not None
         texture_cells.__kwdefaults__['map_view'] = view
         print(f'texture_cells map_view={view}')
-    names = list(SETS) if args.set == 'all' else [args.set]
+    names = [*SETS, 'validation'] if args.set == 'all' else [args.set]
     with tempfile.TemporaryDirectory() as scratch:
         folder = args.keep or Path(scratch)
         folder.mkdir(parents=True, exist_ok=True)
         print(f'{"session":14s} {"seen":>5s} {"textured":>9s} {"back faces":>16s} '
               f'{"unseen textured":>17s} {"colour error median / p95":>14s}', flush=True)
         for set_name in names:
+            if set_name == 'validation' and not VALIDATION.is_dir():
+                print(f'validation: skipped: no {VALIDATION} (the shared data beside the '
+                      'workspace)\n', flush=True)
+                continue
             total = np.zeros(5, dtype=np.int64)
-            for name, options in SETS[set_name].items():
+            for name, bag in _sessions(set_name, folder):
                 started = time.monotonic()
-                result = scores(session(name, options, folder), folder)
+                result = scores(bag(), folder)
                 total += [result[key] for key in KEYS]
                 print(f'{name:14s} {_row(result)}   ({time.monotonic() - started:.0f} s)',
                       flush=True)

@@ -80,6 +80,7 @@ __all__ = [
     'EPOCH',
     'SessionSettings',
     'SimulatedSession',
+    'StereoConnections',
     'simulate',
     'write_bag',
     'write_session',
@@ -542,7 +543,7 @@ def write_bag(session: PoseRecording, path, progress: Callable[[float], None] | 
     stamp_list = stamps.tolist()
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         pairs = dict(session.stereo_shots)
-        camera = _StereoConnections(writer, store)
+        camera = StereoConnections(writer, store)
         if 0 in pairs:      # the pair before the exploration comes first
             camera.write(pairs.pop(0), stamp_list[0])
         connections = [writer.add_connection('/' + station_pose_topic(name), MSGTYPE,
@@ -568,7 +569,7 @@ STEREO_TOPICS = {  # side: (image topic, camera_info topic, frame)
 }
 
 
-class _StereoConnections:
+class StereoConnections:
     """The four camera topics of a bag, each added once, and pairs written as a camera driver
     publishes them: rgb8 images and their camera_info, all four stamped with the exposure."""
 
