@@ -53,6 +53,32 @@ def test_the_validation_benchmark_scores_a_held_out_session_beside_its_oracle(wo
     assert 'summary: targets met on' in result.stdout
 
 
+def test_a_validation_session_gets_a_stereo_pair_and_its_texture_is_scored(workspace, tmp_path):
+    """``bench_texture_sessions.py --set validation``, one view: the session's bag copied
+    whole with a pair of its surface drawn in, and the texture scored against its samples."""
+    folder = workspace.parent / 'shared' / 'data' / 'validation_sessions'
+    if not folder.is_dir():
+        pytest.skip(f'no validation sessions at {folder}: they come with the shared data '
+                    'beside the workspace, not with it')
+    sys.path.insert(0, str(workspace / 'test' / 'benchmarks'))
+    import bench_texture_sessions as texture
+    from rosbags.highlevel import AnyReader
+    name, azimuth = next((view for view in texture.validation_views().values()
+                          if '_st_' in view[0]), ('', 0))
+    assert name, 'no static validation session'
+    bag = texture.validation_session(name, azimuth, tmp_path)
+    with AnyReader([folder / name]) as source, AnyReader([bag]) as copy:
+        topics = {c.topic: c.msgcount for c in copy.connections}
+        for connection in source.connections:
+            assert topics.pop(connection.topic) == connection.msgcount
+    assert topics == {'/stereo/left/image_raw': 1, '/stereo/left/camera_info': 1,
+                      '/stereo/right/image_raw': 1, '/stereo/right/camera_info': 1}
+    result = texture.scores(bag, tmp_path)
+    assert result['seen'] > 100
+    assert 0.5 < result['textured'] / result['seen'] <= 1.0
+    assert result['back'] <= 0.05 * result['unseen']
+
+
 def test_a_missing_validation_folder_is_said_in_one_line(workspace, tmp_path):
     result = subprocess.run([sys.executable, BENCH, '--folder', str(tmp_path / 'none')],
                             cwd=workspace, capture_output=True, text=True, timeout=60)
