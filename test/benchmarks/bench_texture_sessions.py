@@ -275,7 +275,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as scratch:
         folder = args.keep or Path(scratch)
         folder.mkdir(parents=True, exist_ok=True)
-        print(f'{"session":14s} {"seen":>5s} {"textured":>9s} {"back faces":>16s} '
+        # the validation set's views are named after their sessions: a wider first column
+        width = 34 if 'validation' in names else 14
+        print(f'{"session":{width}s} {"seen":>5s} {"textured":>9s} {"back faces":>16s} '
               f'{"unseen textured":>17s} {"colour error median / p95":>14s}', flush=True)
         for set_name in names:
             if set_name == 'validation' and not VALIDATION.is_dir():
@@ -287,11 +289,11 @@ def main() -> int:
                 started = time.monotonic()
                 result = scores(bag(), folder)
                 total += [result[key] for key in KEYS]
-                print(f'{name:14s} {_row(result)}   ({time.monotonic() - started:.0f} s)',
+                print(f'{name:{width}s} {_row(result)}   ({time.monotonic() - started:.0f} s)',
                       flush=True)
             seen, textured, unseen, back, _ = total
             verdict = 'PASS' if textured / seen >= 0.85 and back / unseen <= 0.01 else 'FAIL'
-            print(f'{set_name + " (all)":14s} {_row(dict(zip(KEYS, total)))}   targets >= '
+            print(f'{set_name + " (all)":{width}s} {_row(dict(zip(KEYS, total)))}   targets >= '
                   f'0.85 textured, <= 1 % back faces: {verdict}\n', flush=True)
     return 0
 
