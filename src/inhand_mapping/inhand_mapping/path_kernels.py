@@ -539,7 +539,8 @@ def _enter(f: int, c: int, smooth_x: float, smooth_y: float, smooth_z: float, ti
     # visit is not over. The ring is in order of the last time spent in each visit, and the
     # stay's visits are the newest, so this is the visit a scan back from the newest finds
     # (the one that stops at the first visit older than the gap and not of the stay): the
-    # same slot, without the scan (a third of the model's time at a 3 s gap, perf).
+    # same slot, without the scan (some fifty visits at a 3 s gap: bench_mapping's stream
+    # took 32-35 ms with it, 27-31 without; docs/benchmarks.md).
     found = -1
     slot = visits.slot_of[f, c]
     if visits.cell[f, slot] == c and (visits.last[f, slot] >= time - model.visit_gap
