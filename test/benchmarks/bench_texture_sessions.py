@@ -115,8 +115,8 @@ def validation_session(name: str, azimuth: int, folder: Path) -> Path:
     with AnyReader([VALIDATION / name]) as reader:
         first = next(reader.messages())[1]      # the pair: at the session's first stamp
         position, quaternion = np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])
-        objects = [c for c in reader.connections if c.topic.endswith('/object/pose')]
         if not static:      # the map frame: the object sensor at its first pose
+            objects = [c for c in reader.connections if c.topic.endswith('/object/pose')]
             connection, _, raw = next(reader.messages(connections=objects))
             pose = reader.deserialize(raw, connection.msgtype).pose
             position = np.array([pose.position.x, pose.position.y, pose.position.z])
