@@ -164,6 +164,19 @@ def test_bag_without_the_driver_topics_is_refused(tmp_path):
     assert 'no polhemus/index/pose' in result.stderr and "it has ['chatter']" in result.stderr
 
 
+def test_a_bag_without_the_object_pose_says_to_map_it_static(tmp_path):
+    frames, _ = sphere_session(seconds=2.0, surface_points=20, moving=False)
+    bag = write_pose_bag(tmp_path / 'standing', [(t, {k: v for k, v in frame.items() if k != 'object'})
+                                                 for t, frame in frames])
+    result = build_map(bag, '--config', CONFIG, '--output-dir', tmp_path)
+    assert result.returncode == 2
+    assert 'no polhemus/object/pose in this bag' in result.stderr
+    assert 'map it in static mode (--config config/mapping_static.yaml' in result.stderr
+    result = build_map(bag, '--config', STATIC_CONFIG, '--output-dir', tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / 'standing.npz').exists()
+
+
 def test_bad_override_is_refused_with_its_name(moving_bag, tmp_path):
     bag, _, _ = moving_bag
     result = build_map(bag, '--set', 'sensor_sigma=-1', '--output-dir', tmp_path)

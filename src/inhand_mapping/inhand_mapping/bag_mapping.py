@@ -32,12 +32,14 @@ class BagMessages:
 
     Refuses a bag that lacks one of ``topics`` or holds it with another type than
     PoseStamped; ``problem`` says what stopped the reading early (None if the bag was read
-    to its end, e.g. a truncated MCAP read up to the cut).
+    to its end, e.g. a truncated MCAP read up to the cut). ``advice`` per topic: what to do
+    when that one is missing, added to the refusal.
     """
 
-    def __init__(self, bag: Path, topics: set[str]):
+    def __init__(self, bag: Path, topics: set[str], advice: dict[str, str] | None = None):
         self.source = BagSource(bag)
         self.bag, self.topics = Path(bag), topics
+        self.advice = advice or {}
         self.total = 0
 
     def __enter__(self) -> BagMessages:
@@ -46,8 +48,9 @@ class BagMessages:
         missing = sorted(self.topics - set(available))
         if missing:
             self.source.__exit__(None, None, None)
+            advice = ''.join(f'. {self.advice[topic]}' for topic in missing if topic in self.advice)
             raise ValueError(f'{self.bag}: no {", ".join(missing)} in this bag; it has '
-                             f'{sorted(available) or "no topics"}')
+                             f'{sorted(available) or "no topics"}{advice}')
         for topic in sorted(self.topics):
             if available[topic].msgtype != POSE_STAMPED:
                 self.source.__exit__(None, None, None)
@@ -104,7 +107,11 @@ class BagRegistration:
         wanted = set(self.topics) | ({self.object_topic} if self.object_topic else set())
         report = self.report
         chunk: list[tuple[str, bytes]] = []
-        with BagMessages(self.bag, wanted) as source:
+        # the common case: a session of an object that stood still, read as tracked
+        advice = {self.object_topic: 'Without an object pose the object must stand still: map '
+                  'it in static mode (--config config/mapping_static.yaml, or mode:=static on '
+                  'the registration node)'} if self.object_topic else {}
+        with BagMessages(self.bag, wanted, advice) as source:
             bar = Progress('build_map', source.start_ns, source.end_ns) if self.progress \
                 else None
             started = time.monotonic()
