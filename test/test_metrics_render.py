@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from inhand_common.ground_truth import (
+    CONTACT_TRUTH_EXPLORED,
     TRUTH_KEYS,
     GroundTruth,
     default_frame,
@@ -24,6 +25,7 @@ from inhand_common.ground_truth import (
     truth_path,
     write_truth,
 )
+from inhand_mapping.map_io import save_ply
 from inhand_tools import drawing as render
 from inhand_tools.commands.map_metrics import main as map_metrics_main
 from inhand_tools.commands.render_map import main as render_map_main
@@ -362,6 +364,80 @@ def test_bad_truth_files_are_refused_clearly(tmp_path):
     with pytest.raises(ValueError, match='contacts has 1 rows but contact_times has 2'):
         load_truth(bad)
     assert len(TRUTH_KEYS) == 14
+
+
+def contact_truth(path, surface, contacts, times, mode, **extra):
+    """A truth file of the plainer format other session generators write (as
+    ../shared/data/validation_sessions holds)."""
+    np.savez(path, surface=surface, contacts=np.asarray(contacts, dtype=float),
+             contact_t=np.asarray(times, dtype=float), contact_finger=np.zeros(len(times), int),
+             mode=np.array(mode), **{k: np.array(v) for k, v in extra.items()})
+    return path
+
+
+def open_ball(count: int, radius: float, wall: float):
+    """Samples of a ball of ``radius`` with a 60-degree opening at the top and hollow inside
+    (a bowl with a ``wall`` thick side): outer, inner and rim samples, and the outer ones'
+    normals."""
+    outer, normals = fibonacci_sphere(count, radius)
+    inner, _ = fibonacci_sphere(count, radius - wall)
+    keep_outer, keep_inner = outer[:, 2] < radius * 0.5, inner[:, 2] < (radius - wall) * 0.5
+    return outer[keep_outer], inner[keep_inner], normals[keep_outer]
+
+
+def test_the_surface_and_contacts_format_is_read_as_a_truth(tmp_path):
+    outer, inner, normals = open_ball(20_000, RADIUS, 0.005)
+    path = contact_truth(tmp_path / 'ball_tr_v5_r30_T120_s7_truth.npz',
+                         np.concatenate([outer, inner]), outer[:50], np.arange(50) / 30.0,
+                         'tracked', rate=30.0, seconds=120.0, speed_cms=5.0)
+    truth = load_truth(path)
+    assert (truth.object_name, truth.seed, truth.rate, truth.static) == ('ball', 7, 30.0, False)
+    assert truth.settings['explored_radius'] == CONTACT_TRUTH_EXPLORED == 0.01
+    assert len(truth.stray_points) == 0 and len(truth.contacts) == len(truth.contact_times) == 50
+    # normals estimated: outward on the outer wall, towards the middle on the inner wall
+    # (into the bowl, where the air is), away from the material between them
+    n = len(outer)
+    assert np.mean(np.einsum('ij,ij->i', truth.surface_normals[:n], normals) > 0.9) > 0.98
+    inward = -inner / np.linalg.norm(inner, axis=1, keepdims=True)
+    assert np.mean(np.einsum('ij,ij->i', truth.surface_normals[n:], inward) > 0.9) > 0.98
+    # the map's frame needs no move: one identity object pose
+    assert np.array_equal(in_frame(truth, 'tracker').surface_points, truth.surface_points)
+    # found beside a bag of that name when there is no simulator sidecar
+    assert truth_path(tmp_path / 'ball_tr_v5_r30_T120_s7') == path
+    bad = contact_truth(tmp_path / 'odd_truth.npz', outer, outer[:2], [0.0], 'rolling')
+    with pytest.raises(ValueError, match=r"'mode' is 'rolling', expected 'static' or 'tracked'"):
+        load_truth(bad)
+    bad = contact_truth(tmp_path / 'odd2_truth.npz', outer, outer[:2], [0.0], 'static')
+    with pytest.raises(ValueError, match='contacts has 2 rows but contact_t has 1'):
+        load_truth(bad)
+
+
+def test_map_metrics_scores_a_map_against_the_surface_and_contacts_format(tmp_path, capsys):
+    surface, _ = fibonacci_sphere(40_000, RADIUS)
+    touched = surface[surface[:, 2] > 0.02]          # a cap was explored
+    path = contact_truth(tmp_path / 'cap_st_v5_r30_T60_s1_truth.npz', surface, touched[::20],
+                         np.arange(len(touched[::20])) / 30.0, 'static')
+    lattice = Lattice(H)
+    cells = voxel_centres(surface, lattice)        # the whole sphere: recall 1 either way
+    ones = np.ones(len(cells))
+    save_ply(tmp_path / 'cap.ply', cells, ones, ones, ones, frame_id='polhemus_source')
+    code = map_metrics_main([str(tmp_path / 'cap.ply'), '--truth', str(path), '--json',
+                             str(tmp_path / 'cap.json')])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert "object 'cap', static session" in printed.out and 'tracker frame' in printed.out
+    assert 'within 10 mm of a true contact' in printed.out   # that format's explored surface
+    scores = json.loads((tmp_path / 'cap.json').read_text())
+    assert scores['explored_radius_mm'] == 10.0
+    assert scores['thresholds']['0.8']['precision_at_5mm'] == 1.0
+    assert scores['thresholds']['0.8']['recall_at_5mm'] == 1.0
+    code = map_metrics_main([str(tmp_path / 'cap.ply'), '--truth', str(path),
+                             '--explored-radius', '0.005', '--json', str(tmp_path / 'five.json')])
+    five = json.loads((tmp_path / 'five.json').read_text())
+    assert code == 0 and five['explored_radius_mm'] == 5.0
+    # the cap's explored band is narrower by 5 mm all round
+    assert five['thresholds']['0.8']['explored_samples'] \
+        < scores['thresholds']['0.8']['explored_samples']
 
 
 # ------------------------------------------------------------------ the CLIs on real maps

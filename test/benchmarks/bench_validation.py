@@ -36,13 +36,14 @@ from pathlib import Path
 
 import numpy as np
 
+from inhand_common.ground_truth import CONTACT_TRUTH_EXPLORED, load_truth, truth_path
 from inhand_tools.map_cells import load_map
-from inhand_tools.map_quality import SurfaceTruth, map_metrics, one_touch_oracle
+from inhand_tools.map_quality import map_metrics, one_touch_oracle, surface_truth
 
 WORKSPACE = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 FOLDER = WORKSPACE.parent / 'shared' / 'data' / 'validation_sessions'
-EXPLORED_RADIUS = 0.01     # the folder's README: surface within 1 cm of a true contact
+EXPLORED_RADIUS = CONTACT_TRUTH_EXPLORED   # the folder's README: within 1 cm of a true contact
 NAME = re.compile(r'_v(?P<speed>[\d.]+)_r(?P<rate>[\d.]+)_T(?P<seconds>[\d.]+)_s\d+$')
 
 
@@ -54,9 +55,9 @@ def f_target(rate: float, speed: float, seconds: float) -> float:
 
 
 def score(bag: Path, output: Path, overrides: list[str]) -> dict:
-    truth = np.load(bag.parent / f'{bag.name}_truth.npz')
-    mode = str(truth['mode'])
-    config = WORKSPACE / 'config' / ('mapping_static.yaml' if mode == 'static' else 'mapping.yaml')
+    truth = load_truth(truth_path(bag))
+    mode = 'static' if truth.static else 'tracked'
+    config = WORKSPACE / 'config' / ('mapping_static.yaml' if truth.static else 'mapping.yaml')
     done = subprocess.run([str(BIN / 'build_map'), str(bag), '--config', str(config),
                            *[item for pair in overrides for item in ('--set', pair)],
                            '--output-dir', str(output), '--quiet', '--force'],
@@ -64,14 +65,14 @@ def score(bag: Path, output: Path, overrides: list[str]) -> dict:
     if done.returncode != 0:
         raise RuntimeError(f'build_map {bag.name} failed:\n{done.stderr[-2000:]}')
     cells = load_map(output / f'{bag.name}.npz')
-    surface = SurfaceTruth(truth['surface'], truth['contacts'], explored_radius=EXPLORED_RADIUS)
+    surface = surface_truth(truth, EXPLORED_RADIUS)
     scores = map_metrics(cells.centres, cells.probabilities, cells.lattice, surface)
     oracle = one_touch_oracle(surface, cells.lattice)
     occupied = cells.centres[cells.probabilities > 0.8]
     strays = int(np.count_nonzero(surface.distance(occupied)[0] > 0.005))
     match = NAME.search(bag.name)
     rate, speed, seconds = (float(match[k]) for k in ('rate', 'speed', 'seconds')) if match \
-        else (float(truth['rate']), float(truth['speed_cms']), float(truth['seconds']))
+        else (truth.rate, truth.settings['speed_cms'], truth.settings['seconds'])
     floor = min(f_target(rate, speed, seconds), oracle['fscore_at_5mm'] - 0.02)
     return {'F': scores['fscore_at_5mm'], 'P': scores['precision_at_5mm'],
             'R': scores['recall_at_5mm'], 'occupied': len(occupied), 'strays': strays,

@@ -55,6 +55,19 @@ stereo_focal           () float    focal length of the rectified pair (px)
 stereo_baseline        () float    baseline (m): true disparity = focal * baseline / depth
 =====================  ==========  ============================================================
 
+**The plainer format of other session generators** (``<name>_truth.npz`` beside the bag
+``<name>``, as ``../shared/data/validation_sessions`` holds) is read too: ``surface`` (N, 3)
+samples of the true surface, ``contacts`` (M, 3) the true contact points, ``contact_t`` (M,)
+their times, ``mode`` ('static' or 'tracked'), and optionally ``rate``, ``seconds``,
+``speed_cms``; everything already in the map's frame (tracked: the object sensor's; static:
+the tracker's). :func:`load_truth` turns it into a :class:`GroundTruth` with one identity
+object pose (so the map's default frame needs no move), no stray points (the format has
+none), normals estimated from the samples (:func:`estimated_normals`, turned towards the
+free space around the object: only the pictures' shading and the mean offset along the
+normal use them) and ``settings`` saying so, with
+that format's own explored surface (within :data:`CONTACT_TRUTH_EXPLORED` of a contact).
+:func:`truth_path` finds either sidecar.
+
 Which frame a map is in: a tracked map (``config/mapping.yaml``, registration ``tracked``)
 is in the ``object`` frame, which is the object sensor's frame; the truth puts the object
 frame on the object sensor (so the two frames are one). A static map
@@ -69,6 +82,8 @@ from __future__ import annotations
 
 import io
 import json
+import math
+import re
 import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -79,8 +94,9 @@ import numpy as np
 
 from inhand_common.rotations import quaternion_normalize, rotate_vectors, slerp
 
-__all__ = ['FRAMES', 'STEREO_KEYS', 'TRUTH_KEYS', 'GroundTruth', 'StereoTruth',
-           'default_frame', 'in_frame', 'load_truth', 'pose_at', 'truth_path', 'write_truth']
+__all__ = ['CONTACT_TRUTH_EXPLORED', 'CONTACT_TRUTH_KEYS', 'FRAMES', 'STEREO_KEYS', 'TRUTH_KEYS',
+           'GroundTruth', 'StereoTruth', 'default_frame', 'estimated_normals', 'in_frame',
+           'load_truth', 'pose_at', 'truth_path', 'write_truth']
 
 TRUTH_KEYS = ('object_name', 'static', 'rate', 'seed', 'settings_json', 'surface_points',
               'surface_normals', 'contacts', 'contact_times', 'stray_points', 'stray_times',
@@ -88,6 +104,9 @@ TRUTH_KEYS = ('object_name', 'static', 'rate', 'seed', 'settings_json', 'surface
 
 STEREO_KEYS = ('surface_colours', 'camera_pose', 'stereo_time', 'stereo_depth',
                'stereo_object_mask', 'stereo_focal', 'stereo_baseline')
+
+CONTACT_TRUTH_KEYS = ('surface', 'contacts', 'contact_t', 'mode')   # the plainer format
+CONTACT_TRUTH_EXPLORED = 0.01   # m: that format's explored surface (its README's definition)
 
 FRAMES = ('object', 'tracker')
 
@@ -153,11 +172,14 @@ class GroundTruth:
 
 def truth_path(bag) -> Path:
     """The ground-truth sidecar of a bag: ``<bag folder>.truth.npz`` beside the bag folder
-    (given the folder, or the .mcap/.db3 file inside it)."""
+    (given the folder, or the .mcap/.db3 file inside it); the plainer format's
+    ``<bag folder>_truth.npz`` when only that one is there."""
     bag = Path(bag)
     if bag.suffix in ('.mcap', '.db3') and not bag.is_dir():
         bag = bag.parent
-    return bag.with_name(bag.name + '.truth.npz')
+    ours = bag.with_name(bag.name + '.truth.npz')
+    theirs = bag.with_name(bag.name + '_truth.npz')
+    return theirs if theirs.exists() and not ours.exists() else ours
 
 
 def _scalar(data, key, kind, path):
@@ -187,6 +209,8 @@ def load_truth(path) -> GroundTruth:
         raise ValueError(f'{path}: not a truth file (a single array, not an NPZ archive)')
     with data:
         missing = [key for key in TRUTH_KEYS if key not in data.files]
+        if missing and all(key in data.files for key in CONTACT_TRUTH_KEYS):
+            return _contact_truth(data, path)
         if missing:
             raise ValueError(f'{path}: not a simulator truth file: missing key(s) '
                              f'{", ".join(missing)} (it has {", ".join(sorted(data.files))})')
@@ -223,6 +247,79 @@ def load_truth(path) -> GroundTruth:
                          f'has {len(arrays["surface_points"])}')
     return GroundTruth(settings=settings, path=path, frame='object', surface_colours=colours,
                        stereo=stereo, **scalars, **arrays)
+
+
+def _contact_truth(data: Any, path: Path) -> GroundTruth:
+    """A truth file of the plainer format (module doc) as a :class:`GroundTruth`."""
+    try:
+        surface = np.asarray(data['surface'], dtype=np.float64)
+        contacts = np.asarray(data['contacts'], dtype=np.float64).reshape(-1, 3)
+        times = np.asarray(data['contact_t'], dtype=np.float64).reshape(-1)
+        mode = str(data['mode'])
+        extra = {key: float(data[key]) for key in ('rate', 'seconds', 'speed_cms')
+                 if key in data.files}
+    except _UNREADABLE as error:
+        raise ValueError(f'{path}: unreadable truth arrays ({type(error).__name__}: '
+                         f'{error})') from None
+    if mode not in ('static', 'tracked'):
+        raise ValueError(f"{path}: truth key 'mode' is {mode!r}, expected 'static' or 'tracked'")
+    if surface.ndim != 2 or surface.shape[1] != 3 or len(surface) == 0:
+        raise ValueError(f"{path}: truth key 'surface' has shape {surface.shape}, expected (n, 3)")
+    if len(contacts) != len(times):
+        raise ValueError(f'{path}: contacts has {len(contacts)} rows but contact_t has '
+                         f'{len(times)}')
+    # the names say <object>_<st|tr>_..._s<seed>
+    name = re.match(r'(?P<object>.+?)_(st|tr)_.*?(_s(?P<seed>\d+))?_truth\.npz$', path.name)
+    settings = {'format': 'contacts (surface, contacts, contact_t, mode)',
+                'explored_radius': CONTACT_TRUTH_EXPLORED, 'normals': 'estimated', **extra}
+    return GroundTruth(
+        object_name=name['object'] if name else path.name.removesuffix('_truth.npz'),
+        static=mode == 'static', rate=extra.get('rate', math.nan),
+        seed=int(name['seed']) if name and name['seed'] else 0, settings=settings,
+        surface_points=surface, surface_normals=estimated_normals(surface), contacts=contacts,
+        contact_times=times, stray_points=np.zeros((0, 3)), stray_times=np.zeros(0),
+        object_times=np.zeros(1), object_positions=np.zeros((1, 3)),
+        object_quaternions=np.array([[0.0, 0.0, 0.0, 1.0]]), frame='object', path=path)
+
+
+def estimated_normals(points: np.ndarray, near: int = 12, spacing: float = 0.002) -> np.ndarray:
+    """Unit normals (N, 3) of dense samples (N, 3) of a closed surface (a scanned object:
+    solid inside, open cavities such as a cup's): the direction of least spread of each
+    sample's ``near`` nearest, turned towards the *outside*, the free space connected to
+    the border of a grid of ``spacing`` around the samples (the samples' cells, grown by one,
+    are the wall). A sample whose two sides are both outside or both not (a part thinner
+    than the grown wall, a closed hollow) is turned away from the centroid of all."""
+    from scipy import ndimage  # type: ignore[import-untyped]
+    from scipy.spatial import cKDTree  # type: ignore[import-untyped]
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) < 3:
+        return np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    _, nearest = cKDTree(points).query(points, min(near, len(points)))
+    local = points[nearest] - points[nearest].mean(axis=1, keepdims=True)
+    _, vectors = np.linalg.eigh(np.einsum('nki,nkj->nij', local, local))
+    normals = vectors[:, :, 0]
+    # the outside: free cells reached from the grid's border
+    low = points.min(axis=0) - 4 * spacing
+    index = np.floor((points - low) / spacing).astype(np.int64)
+    shape = tuple(index.max(axis=0) + 5)
+    wall = np.zeros(shape, dtype=bool)
+    wall[tuple(index.T)] = True
+    wall = ndimage.binary_dilation(wall, iterations=1)
+    labels, _ = ndimage.label(~wall)
+    outside = np.zeros(labels.max() + 1, dtype=bool)
+    outside[np.unique(np.concatenate([labels[0].ravel(), labels[-1].ravel(), labels[:, 0].ravel(),
+                                      labels[:, -1].ravel(), labels[:, :, 0].ravel(),
+                                      labels[:, :, -1].ravel()]))] = True
+    outside[0] = False          # label 0: the wall itself
+
+    def is_outside(probe: np.ndarray) -> np.ndarray:
+        cell = np.clip(np.floor((probe - low) / spacing).astype(np.int64), 0, np.array(shape) - 1)
+        return np.asarray(outside[labels[tuple(cell.T)]])
+
+    ahead, behind = is_outside(points + 2.5 * spacing * normals), is_outside(points - 2.5 * spacing * normals)
+    fallback = np.einsum('ij,ij->i', normals, points - points.mean(axis=0)) >= 0
+    keep = np.where(ahead != behind, ahead, fallback)
+    return np.asarray(np.where(keep[:, None], normals, -normals))
 
 
 def _stereo_truth(data: Any, path: Path) -> tuple[np.ndarray | None, StereoTruth | None]:

@@ -14,12 +14,16 @@ MAP is one of
   * a bag holding a recorded ``occupancy/cloud`` (every touched cell) or
     ``occupancy/occupied`` cloud: the last message is used.
 
-TRUTH is the simulator's ``<bag folder>.truth.npz``; it defaults to the sidecar of
-``--bag`` (or of MAP when MAP is a bag). ``--bag`` also gives the registered raw points:
-the bag's fingertip poses through the same registration as ``build_map`` (tracked for a
-map in the object frame, static for one in the tracker frame; ``--config`` for its
-parameters). The frame defaults to the tracker frame for static sessions and the object
-frame otherwise.
+TRUTH is the simulator's ``<bag folder>.truth.npz``, or the plainer ``<bag folder>_truth.npz``
+of other session generators (surface samples and true contacts, as
+``../shared/data/validation_sessions`` holds; ``inhand_common/ground_truth.py``); it defaults
+to the sidecar of ``--bag`` (or of MAP when MAP is a bag). The explored surface is the
+surface within ``--explored-radius`` of a true contact: by default 5 mm for the simulator's
+truth and 1 cm for the plainer format, as its README defines it. ``--bag`` also gives the
+registered raw points: the bag's fingertip poses through the same registration as
+``build_map`` (tracked for a map in the object frame, static for one in the tracker frame;
+``--config`` for its parameters). The frame defaults to the tracker frame for static
+sessions and the object frame otherwise.
 
 Sessions with a stereo pair: a map with colours (``build_map ... --config
 config/stereo.yaml``) and a truth with the stereo keys give the map's colour scores (how
@@ -78,6 +82,7 @@ __all__ = ['EXIT_BAD_INPUT', 'main']
 
 PROG = 'map_metrics'
 EXIT_BAD_INPUT = 2
+DEFAULT_EXPLORED = 0.005    # m: the simulator truth's explored surface
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -92,9 +97,10 @@ def _parser() -> argparse.ArgumentParser:
                         'columns; default 0.8)')
     parser.add_argument('--frame', choices=FRAMES, help='frame the map is in (default: '
                         'tracker for a static session, object otherwise)')
-    parser.add_argument('--explored-radius', type=float, default=0.005, metavar='M',
+    parser.add_argument('--explored-radius', type=float, metavar='M',
                         help='surface within this distance (m) of a true contact counts as '
-                        'explored (default 0.005)')
+                        "explored (default: the truth format's own, 0.005 for the "
+                        'simulator, 0.01 for the surface-and-contacts format)')
     parser.add_argument('--resolution', type=float, metavar='M',
                         help='cell size (m) of a PLY or cloud map (default: inferred)')
     parser.add_argument('--config', action='append', default=[],
@@ -110,7 +116,7 @@ def _check_options(args: argparse.Namespace) -> None:
     for threshold in args.threshold:
         if not 0.0 <= threshold < 1.0:
             raise ValueError(f'--threshold {threshold:g}: must be in [0, 1)')
-    if not args.explored_radius > 0:
+    if args.explored_radius is not None and not args.explored_radius > 0:
         raise ValueError('--explored-radius must be positive')
     if args.resolution is not None and not args.resolution > 0:
         raise ValueError('--resolution must be positive')
@@ -150,6 +156,8 @@ def _load_inputs(args: argparse.Namespace) -> _Inputs:
     cells = load_map(args.map, args.resolution)
     truth_path = find_truth(args.truth, args.bag, args.map)
     truth = load_truth(truth_path)
+    if args.explored_radius is None:
+        args.explored_radius = float(truth.settings.get('explored_radius', DEFAULT_EXPLORED))
     frame = args.frame or default_frame(truth)
     truth = in_frame(truth, frame)
     points = None
