@@ -56,7 +56,8 @@
 #                      and coverage-greedy: map and completed-surface F@5mm of the whole true
 #                      surface after 10-80 strokes, the prediction's calibration and cost
 #                      (test/benchmarks/bench_explore.py: --objects, --modes, --explorers,
-#                      --seeds, --strokes, --jobs, --keep DIR, --quick)
+#                      --seeds, --strokes, --jobs, --keep DIR, --quick; --camera: the
+#                      completed surface with a stereo pair's points instead)
 #   startup            first start: build_map, occupancy_node and stereo_node with an empty
 #                      numba cache and after compile_kernels (what bootstrap.sh runs)
 #                      (test/benchmarks/bench_startup.py: --fresh-clone)

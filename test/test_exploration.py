@@ -4,6 +4,7 @@ simulator's guided and greedy explorers."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from dataclasses import replace
@@ -13,12 +14,19 @@ import numpy as np
 import pytest
 import yaml
 
-from inhand_shape.implicit_surface import PredictionSettings, predict_surface
+from inhand_shape.implicit_surface import (
+    SEEN_POINTS,
+    PredictionSettings,
+    predict_map_surface,
+    predict_surface,
+    seen_cells,
+)
 from inhand_shape.known_shapes import KNOWN_SHAPES, signed_distance
 from inhand_shape.next_touch import SEPARATION, next_touches
 from inhand_shape.superquadric import Superquadric
 from inhand_shape.surface_mesh import oriented_normals
 from inhand_shape.touch_guidance import GUIDANCE_PARAMETERS, MODE_ORIENTATION, guide, std_colours
+from pose_sessions import sphere_session, write_pose_bag
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 RESOLUTION = 0.005
@@ -75,6 +83,68 @@ def test_the_predicted_surface_follows_the_touched_cap_and_closes_the_sphere_uns
     assert len(band) == len(surface.band_points) > 0 and np.all(band >= 0)
     assert surface.process.std(surface.band_points).max() <= 0.011   # the process's own
     assert band.min() < surface.settings.signal_std < band.max()
+
+
+def _sphere_points(count: int, radius: float = RADIUS) -> np.ndarray:
+    i = np.arange(count) + 0.5
+    polar, azimuth = np.arccos(1.0 - 2.0 * i / count), np.pi * (1.0 + np.sqrt(5.0)) * i
+    return radius * np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar),
+                              np.cos(polar)], axis=1)
+
+
+def test_what_a_camera_saw_is_surface_and_the_space_in_front_of_it_free():
+    touched, free = _sphere_cap(z_above=0.02)        # a small cap touched at the top
+    camera = np.array([0.3, 0.0, 0.0])               # the camera looks at the sphere's +x side
+    points = _sphere_points(40_000)
+    seen = points[(points[:, 0] > 0.01) & (points @ (camera / 0.3) > 0)]
+    map_cells = np.concatenate([touched, free])
+    known = map_cells
+    surface, empty = seen_cells(seen, camera, map_cells, RESOLUTION, known, touched)
+    # on the sphere, in the map's lattice, none a touched or free cell
+    assert len(surface) > 50
+    assert np.abs(np.linalg.norm(surface, axis=1) - RADIUS).max() < 0.0045
+    phase = ((surface - map_cells[0]) / RESOLUTION) % 1.0
+    assert np.abs((phase + 0.5) % 1.0 - 0.5).max() < 1e-6
+    gap = np.abs(surface[:, None, :] - map_cells[None, :, :]).max(axis=2).min(axis=1)
+    assert gap.min() > RESOLUTION / 2
+    # the free cells lie in front of the seen side, outside the sphere, towards the camera
+    radius = np.linalg.norm(empty, axis=1)
+    assert len(empty) > 50 and radius.min() > RADIUS - RESOLUTION / 2
+    assert np.median(radius) > RADIUS + RESOLUTION and np.all(empty[:, 0] > 0)
+    # a cell with fewer than SEEN_POINTS points is a mismatch, not a surface
+    lone = np.array([[0.0, 0.0, -0.1]])
+    assert len(seen_cells(np.repeat(lone, SEEN_POINTS - 1, axis=0), None, map_cells, RESOLUTION,
+                          known)[0]) == 0
+    assert len(seen_cells(np.repeat(lone, SEEN_POINTS, axis=0), None, map_cells, RESOLUTION,
+                          known)[0]) == 1
+    # a camera point behind a touched surface along its ray (dark glass reads behind it) is
+    # not surface: the touch map wins
+    behind = np.repeat([[0.0, 0.0, RADIUS - 0.012]], 10, axis=0)
+    assert len(seen_cells(behind, np.array([0.0, 0.0, 0.3]), map_cells, RESOLUTION, known,
+                          touched)[0]) == 0
+    assert len(seen_cells(behind, np.array([0.0, 0.0, 0.3]), map_cells, RESOLUTION, known)[0]) == 1
+
+
+def test_the_completed_surface_follows_what_the_camera_saw_where_no_finger_went():
+    touched, free = _sphere_cap(z_above=0.02)
+    centres = np.concatenate([touched, free])
+    probabilities = np.concatenate([np.full(len(touched), 0.9), np.full(len(free), 0.3)])
+    camera = np.array([0.3, 0.0, -0.1])
+    points = _sphere_points(40_000)
+    seen = points[np.einsum('ij,ij->i', points, camera - points) > 0]     # the side it faces
+    alone = predict_map_surface(centres, probabilities, RESOLUTION)
+    both = predict_map_surface(centres, probabilities, RESOLUTION, seen=seen, seen_from=camera)
+
+    def seen_side(surface) -> np.ndarray:
+        return (surface.vertices[:, 0] > 0.02) & (surface.vertices[:, 2] < 0.0)
+
+    # where only the camera saw the sphere, the completed surface is on it to about a
+    # millimetre and surer than the prior; from the cap alone there is no surface there (the
+    # prior reaches only prior_reach past the touched cells)
+    side = seen_side(both)
+    assert side.sum() > 20 and not seen_side(alone).any()
+    assert np.abs(np.linalg.norm(both.vertices[side], axis=1) - RADIUS).mean() < 0.002
+    assert np.median(both.vertex_std[side]) < both.settings.signal_std
 
 
 def test_the_prior_is_pulled_back_where_it_reaches_past_the_touched_cells_but_not_inside():
@@ -237,6 +307,34 @@ def test_predict_surface_writes_the_surface_with_its_std_the_ranked_touches_and_
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "'length_scale'" in bad.stderr and '0.2' in bad.stderr
     assert not (tmp_path / 'bad').exists()
+
+
+def test_predict_surface_takes_what_the_bags_camera_saw(cat_map, tmp_path):
+    base = [sys.executable, '-m', 'inhand_tools.commands.predict_surface', str(cat_map),
+            '--output-dir', str(tmp_path), '--config', str(WORKSPACE / 'config' / 'mapping_static.yaml'),
+            '--config', str(WORKSPACE / 'config' / 'stereo.yaml')]
+    run = subprocess.run([*base, '--name', 'seen', '--bag', str(WORKSPACE / 'bags' / 'cat_static')],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert re.search(r'1 stereo pair\(s\), [\d,]+ points of the object', run.stdout)
+    alone = subprocess.run([*base, '--name', 'alone'], capture_output=True, text=True)
+    assert alone.returncode == 0, alone.stderr
+    import trimesh
+    seen = trimesh.load(tmp_path / 'seen_predicted.ply', process=False)
+    touch = trimesh.load(tmp_path / 'alone_predicted.ply', process=False)
+    assert len(seen.vertices) > 100 and not np.array_equal(seen.vertices, touch.vertices)
+    # a bag without images: one line, the touch map alone; a file that is no bag: refused
+    frames, _ = sphere_session(seconds=0.5, surface_points=10, moving=False)
+    plain_bag = write_pose_bag(tmp_path / 'no_images', frames)
+    plain = subprocess.run([*base, '--name', 'plain', '--bag', str(plain_bag)], capture_output=True,
+                           text=True)
+    assert plain.returncode == 0, plain.stderr
+    assert 'no stereo pair in the bag; the touch map alone' in plain.stdout
+    assert (tmp_path / 'plain_predicted.ply').exists()
+    wrong = subprocess.run([*base, '--name', 'wrong', '--bag', str(cat_map)], capture_output=True,
+                           text=True)
+    assert wrong.returncode == 2 and str(cat_map) in wrong.stderr
+    assert not (tmp_path / 'wrong_predicted.ply').exists()
 
 
 def test_guided_and_greedy_explorers_choose_other_strokes_and_random_sessions_stay_as_they_were():

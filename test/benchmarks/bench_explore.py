@@ -6,6 +6,7 @@
         [--strokes 10,20,30,40,60,80] [--duration 160] [--jobs 2] [--quick] [--keep DIR]
         [--hand NAME=VALUE ...] [--no-validation] [--no-cost]
     .venv/bin/python test/benchmarks/bench_explore.py --compare DIR[,DIR] [SPEC ...]
+    .venv/bin/python test/benchmarks/bench_explore.py --camera [--keep DIR]
 
 Each session: ``simulate_session`` at 30 Hz, 5 cm/s with ``--explorer`` random (the simulated
 person), guided (the next touches of the predicted surface) or greedy (the stroke start
@@ -24,6 +25,12 @@ scored against the **whole** true surface (not only the explored part):
 ones were chosen: docs/exploration.md). Then the same prediction on the independent
 generator's sessions (``../shared/data/
 validation_sessions``, a check, never tuned on; skipped with a line when absent).
+
+``--camera``: the completed surface with what a camera saw (``predict_surface --bag``): the
+texture benchmark's sessions (bench_texture_sessions.py: ``tune``, where the camera's
+settings were chosen, then ``report``), each with one stereo pair before a 90 s exploration;
+their touch maps cut after 15, 30 and 60 s and whole, the completed surface's F against the
+whole true surface without and with the object's stereo points.
 
 The summary gives, per object and mode, the strokes each explorer needs for map F >= 0.8
 (interpolated between the checkpoints; '>N' when not reached), guided's saving against random
@@ -291,6 +298,66 @@ def compare(folders: list[Path], specs: list[str]) -> None:
         setattr(implicit, name, value)
 
 
+CAMERA_CUTS = (15.0, 30.0, 60.0, math.inf)   # s of exploration the touch map is cut after
+
+
+def camera_check(folder: Path) -> None:
+    """``--camera`` (module doc)."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from bench_texture_sessions import SETS, camera_file, session
+
+    from inhand_common.ground_truth import in_frame, load_truth
+    from inhand_mapping.bag_mapping import BagRegistration
+    from inhand_mapping.mapping_config import load_parameters
+    from inhand_shape.implicit_surface import predict_map_surface
+    from inhand_tools.commands.predict_surface import camera_points
+    from inhand_tools.map_quality import SurfaceTruth, point_metrics
+    labels = [f'{c:g} s' if math.isfinite(c) else 'whole' for c in CAMERA_CUTS]
+    for set_name in ('tune', 'report'):
+        gains: dict[str, list[tuple[float, float, float]]] = {label: [] for label in labels}
+        print(f'# {set_name}: map F | completed F without -> with the camera, per cut', flush=True)
+        for name, options in SETS[set_name].items():
+            bag = session(name, options, folder)
+            truth = load_truth(f'{bag}.truth.npz')
+            configs = [str(CONFIG / ('mapping_static.yaml' if truth.static else 'mapping.yaml')),
+                       str(CONFIG / 'stereo.yaml'), str(camera_file(bag, truth, folder))]
+            truth = in_frame(truth, 'tracker' if truth.static else 'object')
+            whole = SurfaceTruth(truth.surface_points, truth.surface_points)
+            registration, occupancy = load_parameters(configs, {})
+            seen, _ = camera_points(bag, configs, registration.mode)
+            assert seen is not None, f'{bag}: no stereo pair'
+            chunks = [c for c in BagRegistration(bag, registration, False) if len(c[1])]
+            start = min(float(c[1].min()) for c in chunks)
+            line = f'{name:8s}'
+            for cut, label in zip(CAMERA_CUTS, labels):
+                grid = occupancy.make_grid()
+                for points, times, fingers in chunks:
+                    keep = times < start + cut
+                    if keep.any():
+                        grid.integrate(points[keep], times[keep], fingers[keep])
+                grid.flush()
+                centres, probabilities, _, _ = grid.cells()
+                map_f = point_metrics(centres[probabilities >= 0.8], whole)['fscore_at_5mm']
+                completed = []
+                for camera in (None, seen):
+                    surface = predict_map_surface(
+                        centres, probabilities, occupancy.grid.resolution,
+                        seen=None if camera is None else camera[0],
+                        seen_from=None if camera is None else camera[1])
+                    samples = area_samples(surface.vertices, surface.faces, 20000,
+                                           np.random.default_rng(0)) if not surface.empty else None
+                    completed.append(0.0 if samples is None
+                                     else point_metrics(samples, whole)['fscore_at_5mm'])
+                gains[label].append((map_f, completed[0], completed[1]))
+                line += f' | {label}: {map_f:.3f} | {completed[0]:.3f} -> {completed[1]:.3f}'
+            print(line, flush=True)
+        for label, rows in gains.items():
+            r = np.array(rows)
+            print(f'# {set_name}, {label}: map F {r[:, 0].mean():.3f}, completed F {r[:, 1].mean():.3f} '
+                  f'-> with the camera {r[:, 2].mean():.3f} (each session {np.min(r[:, 2] - r[:, 1]):+.3f} '
+                  f'to {np.max(r[:, 2] - r[:, 1]):+.3f})', flush=True)
+
+
 def _hand_setting(text: str) -> tuple[str, object]:
     from inhand_sim.exploration import parse_hand_setting
     try:
@@ -318,11 +385,21 @@ def main() -> int:
                         help='instead of sessions: score prediction settings on the maps kept in '
                         'DIRS (comma-separated --keep folders), one SPEC per line of output '
                         '(NAME=VALUE,...; "" the shipped settings)')
+    parser.add_argument('--camera', action='store_true',
+                        help="instead of sessions: the completed surface with a stereo pair's "
+                        'points, on the texture benchmark\'s sessions')
     parser.add_argument('--no-validation', action='store_true',
                         help="skip the check on ../shared/data/validation_sessions")
     args = parser.parse_args()
     if args.compare:
         compare([Path(p) for p in args.compare[0].split(',')], args.compare[1:] or [''])
+        return 0
+    if args.camera:
+        with contextlib.ExitStack() as stack:
+            folder = args.keep or Path(stack.enter_context(
+                tempfile.TemporaryDirectory(prefix='bench_explore_camera_')))
+            folder.mkdir(parents=True, exist_ok=True)
+            camera_check(folder)
         return 0
     if args.quick:
         args.objects, args.modes, args.seeds = 'box,cat', 'static', '1'

@@ -22,7 +22,9 @@ probably is, and how unsure that guess is, the surface is the zero level of a fu
   :data:`FREE_GAP` cells from an occupied one) that the prior puts inside or within
   :data:`FREE_REACH` of its surface are outside, by at most their distance to the nearest
   occupied cell (observed as that distance, with a noise of half of it): what a touch map has
-  that a point cloud has not.
+  that a point cloud has not. What a camera saw (``predict_surface --bag``: the object's
+  stereo points) adds cells where no finger went: surface where its points are, free space
+  in front of them along the rays (:func:`seen_cells`).
 * **Sparse**: the deterministic training conditional (Seeger et al. 2003; Quinonero-Candela
   and Rasmussen 2005) on at most :data:`MAX_INDUCING` inducing points (the observations
   thinned on a grid). Its cost is linear in the observations, and far from every inducing
@@ -63,8 +65,9 @@ from inhand_common.parameters import ParamSpec, validate
 from inhand_shape.superquadric import Superquadric, fit_superquadric
 from inhand_shape.surface_mesh import REACH, nearest_cells, oriented_normals, tangent_plane_distance
 
-__all__ = ['FREE_PROBABILITY', 'PREDICTION_PARAMETERS', 'PredictedSurface', 'PredictionSettings',
-           'SurfacePrior', 'predict_map_surface', 'predict_surface', 'thinned']
+__all__ = ['FREE_PROBABILITY', 'PREDICTION_PARAMETERS', 'SEEN_FREE', 'SEEN_POINTS', 'PredictedSurface',
+           'PredictionSettings', 'SurfacePrior', 'predict_map_surface', 'predict_surface',
+           'seen_cells', 'thinned']
 
 OUTSIDE_OFFSET = 2.0      # cells: the outside observation of each occupied cell, along its normal
 INSIDE_OFFSET = 1.0       # cells: the inside one (short: a wall may be thin)
@@ -522,15 +525,84 @@ def _no_surface(prior: SurfacePrior, settings: PredictionSettings, process: _Spa
 
 def predict_map_surface(centres: ArrayLike, probabilities: ArrayLike, resolution: float,
                         settings: PredictionSettings = PredictionSettings(),
-                        occupied_threshold: float = 0.8, prior: SurfacePrior | None = None
+                        occupied_threshold: float = 0.8, prior: SurfacePrior | None = None,
+                        seen: ArrayLike | None = None, seen_from: ArrayLike | None = None
                         ) -> PredictedSurface:
     """:func:`predict_surface` of a map's cells (centres (N, 3) m and occupancy
     probabilities, every touched cell or only the occupied ones): the cells at or above
-    ``occupied_threshold`` are the surface, those at most :data:`FREE_PROBABILITY` free space."""
+    ``occupied_threshold`` are the surface, those at most :data:`FREE_PROBABILITY` free space.
+    ``seen``: points (K, 3) of the object's surface a camera measured (the stereo points of
+    the object, map frame), ``seen_from`` (K, 3) or (3,) where the camera was: the cells
+    holding at least :data:`SEEN_POINTS` of them are surface too, and those the rays crossed
+    :data:`SEEN_FREE` cells in front of them free (:func:`seen_cells`)."""
     if not 0.5 < occupied_threshold < 1:
         raise ValueError(f'occupied_threshold {occupied_threshold}: must be in (0.5, 1)')
     points = np.asarray(centres, dtype=float).reshape(-1, 3)
     p = np.asarray(probabilities, dtype=float).ravel()
     occupied = p >= occupied_threshold
-    return predict_surface(points[occupied], resolution, points[p <= FREE_PROBABILITY], settings,
-                           weights=p[occupied], prior=prior)
+    free = p <= FREE_PROBABILITY
+    surface, weights, empty = points[occupied], p[occupied], points[free]
+    if seen is not None and len(points):
+        extra, extra_free = seen_cells(seen, seen_from, points, resolution, points[occupied | free],
+                                       points[occupied])
+        surface = np.concatenate([surface, extra])
+        weights = np.concatenate([weights, np.full(len(extra), occupied_threshold)])
+        empty = np.concatenate([empty, extra_free])
+    return predict_surface(surface, resolution, empty, settings, weights=weights, prior=prior)
+
+
+SEEN_POINTS = 3     # camera points a cell must hold to be surface (one is a mismatch)
+SEEN_FREE = (1.5, 3.0)   # cells in front of a camera point along its ray that are free
+# cells towards the camera, up to 4 cm, where a touched cell hides a point behind it
+SEEN_BEHIND = tuple(float(k) for k in range(1, 9))
+
+
+def seen_cells(seen: ArrayLike, seen_from: ArrayLike | None, centres: Points, resolution: float,
+               known: Points, occupied_cells: Points | None = None) -> tuple[Points, Points]:
+    """(surface, free) cell centres, on the lattice of the map cells ``centres``, from the
+    camera's surface points ``seen`` (K, 3) measured from ``seen_from`` ((K, 3) or (3,); None:
+    no free space): a cell holding at least :data:`SEEN_POINTS` of them is surface, one
+    :data:`SEEN_FREE` cells in front of that many along their rays is free, unless it is
+    surface. The ``known`` cells stay as the map has them (occupied: already surface; free: a
+    finger went through, which outweighs a camera point there). A point with one of the
+    touched cells ``occupied_cells`` in front of it along its ray, within :data:`SEEN_BEHIND`,
+    is left out: the camera cannot have seen it there (dark glass reads 5-15 mm behind its
+    surface), and a second layer behind the touched surface would make the process draw two."""
+    from inhand_common.cell_lattice import cell_indices, infer_lattice
+    lattice = infer_lattice(centres, resolution)
+    points = np.asarray(seen, dtype=float).reshape(-1, 3)
+    finite = np.isfinite(points).all(axis=1)
+    occupied_cells = np.empty((0, 3)) if occupied_cells is None else occupied_cells
+    known_keys = _packed(cell_indices(known, lattice))
+
+    def counted(where: Points) -> NDArray[np.int64]:
+        keys, counts = np.unique(cell_indices(where, lattice), axis=0, return_counts=True)
+        keys = keys[counts >= SEEN_POINTS]
+        return keys[~np.isin(_packed(keys), known_keys)]
+
+    origin = np.asarray(lattice.origin)
+    points = points[finite]
+    free = np.empty((0, 3), dtype=np.int64)
+    if seen_from is not None and len(points):
+        camera = np.broadcast_to(np.asarray(seen_from, dtype=float), (len(finite), 3))[finite]
+        ray = points - camera
+        ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+        # a point behind a touched surface along its ray is not what the camera saw there
+        # (dark glass reads 5-10 mm behind its surface): the touch map wins
+        touched = _packed(cell_indices(occupied_cells, lattice))
+        behind = np.zeros(len(points), dtype=bool)
+        for step in SEEN_BEHIND:
+            behind |= np.isin(_packed(cell_indices(points - step * resolution * ray, lattice)),
+                              touched)
+        points, ray = points[~behind], ray[~behind]
+        free = counted(np.concatenate([points - step * resolution * ray for step in SEEN_FREE]))
+    surface = counted(points) if len(points) else np.empty((0, 3), dtype=np.int64)
+    free = free[~np.isin(_packed(free), _packed(surface))]
+    return (np.asarray(origin + (surface + 0.5) * resolution),
+            np.asarray(origin + (free + 0.5) * resolution))
+
+
+def _packed(index: NDArray[np.int64]) -> NDArray[np.int64]:
+    """One int64 per cell index (n, 3) (each within +-2^20 cells of the lattice's origin)."""
+    shifted = np.asarray(index, dtype=np.int64) + (1 << 20)
+    return np.asarray((shifted[:, 0] << 42) | (shifted[:, 1] << 21) | shifted[:, 2])

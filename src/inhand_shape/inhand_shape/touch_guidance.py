@@ -125,15 +125,19 @@ class Guidance:
 
 def guide(centres: ArrayLike, probabilities: ArrayLike, resolution: float, parameters: dict[str, Any],
           *, up: ArrayLike = (0.0, 0.0, 1.0), on_support: bool = False, frame_id: str = 'object',
-          prior: SurfacePrior | None = None) -> Guidance:
+          prior: SurfacePrior | None = None, seen: ArrayLike | None = None,
+          seen_from: ArrayLike | None = None) -> Guidance:
     """The predicted surface and next touches of a map's cells (centres (N, 3) m, occupancy
     probabilities) with validated :data:`GUIDANCE_PARAMETERS` ``parameters``. ``up``: the map
     frame's up; ``on_support``: the object stands on a support below its lowest occupied cell
-    (a static map), where no touch is suggested; ``prior``: an earlier prediction's prior."""
+    (a static map), where no touch is suggested; ``prior``: an earlier prediction's prior;
+    ``seen``, ``seen_from``: the object's surface points a camera measured (map frame) and
+    where it was for each (:func:`~inhand_shape.implicit_surface.predict_map_surface`)."""
     up_vector = np.asarray(up, dtype=float) / np.linalg.norm(up)
     start = time.perf_counter()
     surface = predict_map_surface(centres, probabilities, resolution, prediction_settings(parameters),
-                                  parameters['occupied_threshold'], prior=prior)
+                                  parameters['occupied_threshold'], prior=prior, seen=seen,
+                                  seen_from=seen_from)
     seconds = {'prediction': time.perf_counter() - start}
     support = None
     p = np.asarray(probabilities, dtype=float).ravel()

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from inhand_common.array_types import Matrix3, Vector3
+from inhand_mapping.occupancy import GridSpec
 from inhand_mapping.registration import Registrar
 from inhand_stereo.scene_segmentation import (
     DEFAULT_SEGMENTATION,
@@ -72,14 +73,28 @@ class PlacedShot(NamedTuple):
                      points)
         return points
 
+    def camera_in_map(self, camera_pose: ArrayLike) -> Vector3:
+        """Where the (left) camera was, in the map frame."""
+        matrix, offset = self.map_to_camera(camera_pose)
+        return np.asarray(-np.asarray(matrix).T @ np.asarray(offset))
+
+    def object_points(self, camera_pose: ArrayLike, spec: GridSpec,
+                      config: SegmentationConfig = DEFAULT_SEGMENTATION
+                      ) -> tuple[NDArray[np.float64], Segmentation]:
+        """The measured points (K, 3) of the object in the map frame (the table and the
+        backdrop left out: scene_segmentation.py, in the grid ``spec``), and the segmentation
+        of every pixel."""
+        points = self.pixel_points_in_map(camera_pose)
+        segmentation = segment_object(points, spec, config)
+        return points[segmentation.keep], segmentation
+
     def integrate_into(self, vision: VisionMap, camera_pose: ArrayLike,
                        config: SegmentationConfig = DEFAULT_SEGMENTATION
                        ) -> tuple[int, Segmentation]:
         """Add this shot to the vision local map, once: its object's pixels with the whole
         model, the others (table, backdrop: scene_segmentation.py) as free space only.
         Returns how many cells it updated, and the segmentation."""
-        segmentation = segment_object(self.pixel_points_in_map(camera_pose), vision.spec,
-                                      config)
+        _, segmentation = self.object_points(camera_pose, vision.spec, config)
         depth = self.shot.depth
         return (vision.integrate(depth, self.shot.left_camera.P, self.map_to_camera(camera_pose),
                                  segmentation.keep.reshape(depth.shape)), segmentation)

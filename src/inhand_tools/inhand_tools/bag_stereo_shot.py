@@ -68,6 +68,19 @@ class BagShot:
         what ``stereo/points`` carries."""
         return self.placed.points_in_map(self.config.camera_pose), self.placed.shot.colours
 
+    def object_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The object's measured points (K, 3) in the map frame, of every usable pair (the
+        table and the backdrop left out, as the vision map leaves them out), and where the
+        camera was for each (K, 3)."""
+        points, cameras = [np.empty((0, 3))], [np.empty((0, 3))]
+        for placed in self.pairs.placed:
+            seen, _ = placed.object_points(self.config.camera_pose, self.config.grid,
+                                           self.config.segmentation)
+            points.append(seen)
+            cameras.append(np.broadcast_to(placed.camera_in_map(self.config.camera_pose),
+                                           seen.shape))
+        return np.concatenate(points), np.concatenate(cameras)
+
     @property
     def latest(self) -> PlacedShot:
         """The bag's last usable pair: the one the stereo node colours the map with (the

@@ -13,6 +13,14 @@ Reads a map (NPZ from occupancy/save or build_map, or its PLY) and writes, in ``
 * ``NAME_uncertainty.png``: the map, the surface coloured by its standard deviation, and the
   next touches as arrows.
 
+``--bag BAG`` (the session the map was built from) adds what the camera saw: the object's
+points of every usable stereo pair of the bag (placed and segmented as ``build_map`` and the
+stereo node place them, from the ``stereo_node`` and ``registration_node`` sections of the
+same ``--config`` files: ``--config config/mapping.yaml --config config/stereo.yaml``) make
+the cells holding them surface too, so the completed surface follows the seen side where no
+finger went. A bag without images adds nothing, with one line saying so. The contact times
+are the map's own (its first-touch times).
+
 Parameters come from the ``exploration_node`` section of ``--config`` files, then ``--set
 NAME=VALUE`` (docs/exploration.md lists them). ``--mode static`` (or a map made in static mode,
 which build_map and occupancy_node record) keeps the suggestions off the support the object
@@ -24,11 +32,15 @@ saying so, and no surface file.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import cv2
+import numpy as np
 
 from inhand_common.parameters import ParameterError
+from inhand_mapping.mapping_config import load_parameters
 from inhand_shape.touch_guidance import GUIDANCE_PARAMETERS, guide, write_guidance_files
+from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
 from inhand_tools.drawing import UP_AXES
 from inhand_tools.guidance_figure import guidance_figure
 from inhand_tools.map_cells import load_map
@@ -55,6 +67,9 @@ def main(argv: list[str] | None = None) -> int:
                         'on a support below its lowest cell where nothing is suggested (default: '
                         'what the map records: build_map and occupancy_node record the graph\'s '
                         'mode; a map without it has nothing excluded)')
+    parser.add_argument('--bag', type=Path,
+                        help='the session bag: the object points of its stereo pairs are surface '
+                        'too (with --config config/stereo.yaml for the camera)')
     args = parser.parse_args(argv)
     try:
         parameters = guidance_parameters(args.config, args.set)
@@ -70,8 +85,18 @@ def main(argv: list[str] | None = None) -> int:
     up_axis = args.up or map_up(cells)
     # build_map records the registration mode: a static object stands on a support
     mode = args.mode or ((cells.metadata or {}).get('extra') or {}).get('registration_mode')
+    seen = None
+    if args.bag is not None:
+        try:
+            seen, note = camera_points(args.bag, args.config, mode)
+        except (ValueError, OSError) as error:   # ParameterError and BagError are ValueErrors
+            print(f'{PROG}: {error}', file=sys.stderr)
+            return EXIT_BAD_INPUT
+        if not args.quiet:
+            print(f'{PROG}: {note}')
     guidance = guide(cells.centres, cells.probabilities, cells.lattice.resolution, parameters,
-                     up=UP_AXES[up_axis][2], on_support=mode == 'static', frame_id=cells.frame_id)
+                     up=UP_AXES[up_axis][2], on_support=mode == 'static', frame_id=cells.frame_id,
+                     seen=None if seen is None else seen[0], seen_from=None if seen is None else seen[1])
     figure = guidance_figure(cells, guidance, f'{name}: where to touch next',
                              parameters['occupied_threshold'], up=up_axis)
     ok, png = cv2.imencode('.png', figure)
@@ -81,6 +106,21 @@ def main(argv: list[str] | None = None) -> int:
                f'std {touch.std * 1000:.1f} mm' for rank, touch in enumerate(guidance.suggestions, 1)]
     print_report(PROG, guidance.summary(), details, guidance.seconds, written, args.quiet)
     return 0
+
+
+def camera_points(bag: Path, configs: list[str], mode: str | None
+                  ) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
+    """The object's points (K, 3, map frame) of the bag's stereo pairs and where the camera
+    was for each, placed as build_map places them (``mode``: the map's registration mode,
+    else the files'), and one line saying what was read; None when there are none."""
+    registration, occupancy = load_parameters(configs, {} if mode is None else {'mode': mode})
+    shot, why = read_bag_shot(bag, stereo_config_for_map(configs, registration, occupancy))
+    if shot is None:
+        return None, f'{bag}: {why or "no stereo pair in the bag"}; the touch map alone'
+    points, cameras = shot.object_points()
+    return (points, cameras), (f'{bag}: {len(shot.pairs.placed)} stereo pair(s), '
+                               f'{len(points):,} points of the object: the cells holding them '
+                               'are surface, those in front of them free')
 
 
 if __name__ == '__main__':
