@@ -338,3 +338,71 @@ def test_shape_and_exploration_nodes_publish_what_the_page_and_a_late_viewer_sho
     cells = load_map(bottle_map)
     lowest = cells.centres[cells.probabilities >= 0.8, 2].max()
     assert best.pose.position.z < lowest - 0.01 + 1e-6
+
+
+def test_the_exploration_node_completes_the_surface_with_what_the_stereo_node_saw():
+    """exploration_node with a touched cap of a sphere on occupancy/occupied and the other
+    side of it on stereo/object (as the stereo node publishes it, with the camera's
+    position): the predicted surface covers the side only the camera saw; with ``camera:
+    false`` it does not."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    from inhand_common.point_cloud import from_point_cloud2, to_point_cloud2
+    from inhand_mapping.cloud_layouts import MAP_CELL_DTYPE, seen_cloud
+    from ros_helpers import BackgroundNode, running
+    radius, h = 0.04, 0.005
+    axis = np.arange(-0.07, 0.07, h) + h / 2
+    grid = np.stack(np.meshgrid(axis, axis, axis, indexing='ij'), axis=-1).reshape(-1, 3)
+    r = np.linalg.norm(grid, axis=1)
+    cap = grid[(np.abs(r - radius) < 0.6 * h) & (grid[:, 2] > 0.02)]
+    cells = np.zeros(len(cap), dtype=MAP_CELL_DTYPE)
+    for k, name in enumerate('xyz'):
+        cells[name] = cap[:, k]
+    cells['intensity'], cells['hits'] = 0.95, 3
+    i = np.arange(20_000) + 0.5
+    polar, azimuth = np.arccos(1.0 - 2.0 * i / len(i)), np.pi * (1.0 + np.sqrt(5.0)) * i
+    sphere = radius * np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar),
+                                np.cos(polar)], axis=1)
+    camera = np.array([0.3, 0.0, -0.1])
+    seen = sphere[np.einsum('ij,ij->i', sphere, camera - sphere) > 0]
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+    def predicted(camera_on: bool) -> np.ndarray:
+        feeder = BackgroundNode('test_exploration_feeder')
+        clouds = {name: feeder.node.create_publisher(PointCloud2, name, latched)
+                  for name in ('occupancy/occupied', 'stereo/object')}
+        got: list = []
+        feeder.node.create_subscription(PointCloud2, 'exploration/uncertainty', got.append, latched)
+        feeder.start()
+        stamp = feeder.node.get_clock().now().to_msg()
+        clouds['occupancy/occupied'].publish(to_point_cloud2(cells, 'object', stamp))
+        clouds['stereo/object'].publish(to_point_cloud2(seen_cloud(seen, camera), 'object', stamp))
+        try:
+            with running(['exploration_node', '--ros-args', '-p', f'camera:={str(camera_on).lower()}',
+                          '-p', 'period:=0.2']) as node:
+                deadline = time.monotonic() + 60
+                while not got:    # the first prediction waits up to 10 s for a graph mode
+                    assert time.monotonic() < deadline, node.output()
+                    time.sleep(0.2)
+                # the two clouds may reach the node apart: each arrival is a prediction
+                while camera_on and not len(on_seen_side(vertices_of(got[-1]))):
+                    assert time.monotonic() < deadline, node.output()
+                    time.sleep(0.2)
+                time.sleep(1.0)
+        finally:
+            feeder.close()
+        return vertices_of(got[-1])
+
+    def vertices_of(message) -> np.ndarray:
+        cloud = from_point_cloud2(message)
+        return np.stack([cloud['x'], cloud['y'], cloud['z']], axis=1).astype(float)
+
+    def on_seen_side(points: np.ndarray) -> np.ndarray:
+        return points[(points[:, 0] > 0.02) & (points[:, 2] < 0.0)]
+
+    with_camera, touch_alone = predicted(True), predicted(False)
+    side = on_seen_side(with_camera)
+    assert len(side) > 20 and len(on_seen_side(touch_alone)) == 0
+    assert np.abs(np.linalg.norm(side, axis=1) - radius).mean() < 0.002

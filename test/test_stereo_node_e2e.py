@@ -9,10 +9,12 @@ import time
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial import cKDTree
 
 from conftest import WORKSPACE
-from inhand_common.ground_truth import load_truth
+from inhand_common.ground_truth import in_frame, load_truth
 from inhand_common.point_cloud import from_point_cloud2
+from inhand_mapping.cloud_layouts import seen_points
 from inhand_mapping.map_io import load_local_maps, load_npz, read_ply
 from inhand_tools.launching import ProcessGroup, mapping_graph
 from ros_helpers import BackgroundNode, call_trigger, executable_path
@@ -83,7 +85,8 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, request, bag,
     min_cells = 300 if pairs == 2 else 600
     truth = load_truth(f'{bag_path}.truth.npz')
     topics = [('occupancy/occupied', PointCloud2), ('occupancy/textured', PointCloud2),
-              ('stereo/points', PointCloud2), ('stereo/disparity', DisparityImage)]
+              ('stereo/points', PointCloud2), ('stereo/disparity', DisparityImage),
+              ('stereo/object', PointCloud2)]
     if fusion != 'none':
         topics.append(('vision/cloud', PointCloud2))
     listener = LatchedListener(topics)
@@ -139,6 +142,16 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, request, bag,
 
     points = from_point_cloud2(latest['stereo/points'])
     assert latest['stereo/points'].header.frame_id == 'object' and len(points) > 10_000
+    # the object's points, for the exploration node: on the object (not the table or the
+    # backdrop), each with where the camera was
+    seen, viewpoints = seen_points(from_point_cloud2(latest['stereo/object']))
+    assert latest['stereo/object'].header.frame_id == 'object' and 3000 < len(seen) <= 20_000
+    assert np.ptp(viewpoints, axis=0).max() < 1e-6
+    if pairs == 1:      # static: the map frame is the tracker's, where the camera stands
+        surface = in_frame(truth, 'tracker').surface_points
+        assert np.allclose(viewpoints[0], truth.stereo.camera_pose[:3], atol=1e-4)
+        distance, _ = cKDTree(surface).query(seen)
+        assert np.median(distance) < 0.002 and np.mean(distance < 0.005) > 0.9
 
     textured = from_point_cloud2(latest['occupancy/textured'])
     occupied = from_point_cloud2(latest['occupancy/occupied'])

@@ -17,6 +17,10 @@
   node rebuilds the vision grid from ``log_odds`` (:func:`vision_log_odds`), and
   ``build_map`` passes its vision map through the same layout, so both fuse the same
   float32 values.
+* ``stereo/object``: the object's measured points of a stereo pair (the table and the
+  backdrop left out), ``x y z`` and the camera's position ``vp_x vp_y vp_z`` (float32, map
+  frame, m): PCL's PointWithViewpoint layout. The exploration node makes the cells they fall
+  in surface, and the space in front of them along the rays free.
 """
 
 from __future__ import annotations
@@ -32,11 +36,14 @@ from inhand_mapping.occupancy import GridSpec, OccupancyGrid
 __all__ = [
     'MAP_CELL_DTYPE',
     'REGISTERED_DTYPE',
+    'SEEN_POINT_DTYPE',
     'TEXTURED_CELL_DTYPE',
     'VISION_CELL_DTYPE',
     'MapClouds',
     'map_cells',
     'pack_registered',
+    'seen_cloud',
+    'seen_points',
     'textured_cells',
     'unpack_registered',
     'vision_cells',
@@ -56,6 +63,26 @@ TEXTURED_CELL_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'intensity', 'rgb', 'te
 
 VISION_CELL_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity', '<f4'),
                               ('log_odds', '<f4')])
+
+
+SEEN_POINT_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'),
+                             ('vp_x', '<f4'), ('vp_y', '<f4'), ('vp_z', '<f4')])
+
+
+def seen_cloud(points, viewpoint) -> np.ndarray:
+    """``stereo/object``'s points: ``points`` (K, 3) seen from ``viewpoint`` (3,)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    cloud = np.empty(len(points), dtype=SEEN_POINT_DTYPE)
+    for axis, name in enumerate('xyz'):
+        cloud[name] = points[:, axis]
+        cloud[f'vp_{name}'] = float(np.asarray(viewpoint, dtype=np.float64).reshape(3)[axis])
+    return cloud
+
+
+def seen_points(cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(points (K, 3), viewpoints (K, 3)) of a ``stereo/object`` cloud, float64."""
+    return (np.stack([cloud[a] for a in 'xyz'], axis=1).astype(np.float64),
+            np.stack([cloud[f'vp_{a}'] for a in 'xyz'], axis=1).astype(np.float64))
 
 
 def pack_registered(points, times, fingers) -> np.ndarray:

@@ -73,6 +73,9 @@ EXPLORATION_NODE_PARAMETERS = (
               'idles)', read_only=False),
     ParamSpec('period', 1.0, 'Seconds between two predictions at most (one runs only when the '
               'map has changed)', minimum=0.2, maximum=60.0),
+    ParamSpec('camera', True, "What the stereo node saw of the object (stereo/object: its latest "
+              'pairs) is surface too, the space in front of it free (false: the touch map alone)',
+              read_only=False),
 ) + GUIDANCE_PARAMETERS
 
 

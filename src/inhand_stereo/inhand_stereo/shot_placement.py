@@ -95,9 +95,15 @@ class PlacedShot(NamedTuple):
         model, the others (table, backdrop: scene_segmentation.py) as free space only.
         Returns how many cells it updated, and the segmentation."""
         _, segmentation = self.object_points(camera_pose, vision.spec, config)
+        return self.integrate_segmented(vision, camera_pose, segmentation), segmentation
+
+    def integrate_segmented(self, vision: VisionMap, camera_pose: ArrayLike,
+                            segmentation: Segmentation) -> int:
+        """:meth:`integrate_into` with the shot's segmentation already made (by
+        :meth:`object_points`); how many cells it updated."""
         depth = self.shot.depth
-        return (vision.integrate(depth, self.shot.left_camera.P, self.map_to_camera(camera_pose),
-                                 segmentation.keep.reshape(depth.shape)), segmentation)
+        return vision.integrate(depth, self.shot.left_camera.P, self.map_to_camera(camera_pose),
+                                segmentation.keep.reshape(depth.shape))
 
 
 class UnplacedShot(NamedTuple):

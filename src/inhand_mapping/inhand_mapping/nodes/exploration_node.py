@@ -1,6 +1,9 @@
 """ROS 2 node ``exploration_node``: the completed surface, its uncertainty and where to touch next.
 
-Subscribes ``occupancy/occupied`` (the occupancy node's occupied cells, latched). At most once
+Subscribes ``occupancy/occupied`` (the occupancy node's occupied cells, latched) and
+``stereo/object`` (the stereo node's points of the object with the camera's position, when a
+camera runs: the latest 4 pairs' count as surface, the space in front of them free; ``camera:
+false`` leaves them out; implicit_surface.seen_cells). At most once
 every ``period`` seconds, when the map has changed, it predicts the surface and ranks the next
 touches (inhand_shape.touch_guidance, as ``predict_surface`` does offline) and publishes,
 reliable and transient-local, in the map's frame:
@@ -31,6 +34,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -45,6 +49,7 @@ from inhand_common.node_runner import run_node
 from inhand_common.point_cloud import from_point_cloud2, to_point_cloud2
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.rotations import matrix_to_quaternion
+from inhand_mapping.cloud_layouts import seen_points
 from inhand_mapping.graph_mode import GraphModeQuery
 from inhand_mapping.qos import LATCHED_QOS
 from inhand_shape.implicit_surface import SurfacePrior
@@ -60,6 +65,8 @@ NICENESS = 10           # added to the process's nice value (lower priority than
 MODE_WAIT = 10.0        # s: no prediction without the graph's mode before this (the support)
 REFIT_GROWTH = 1.25      # the prior is refitted when the occupied cells grew by this factor
 ARROW_LENGTH = 0.03      # m
+SEEN_PAIRS = 4           # the latest stereo pairs whose object points count (a turned object
+                         # shows other sides; older pairs of a held object are still right)
 
 
 class ExplorationNode(Node):
@@ -80,6 +87,8 @@ class ExplorationNode(Node):
         self._wake = threading.Event()
         self._stop = threading.Event()
         self.create_subscription(PointCloud2, 'occupancy/occupied', self._on_map, LATCHED_QOS)
+        self._seen: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=SEEN_PAIRS)
+        self.create_subscription(PointCloud2, 'stereo/object', self._on_seen, LATCHED_QOS)
         self._uncertainty = self.create_publisher(PointCloud2, 'exploration/uncertainty', LATCHED_QOS)
         self._next_touch = self.create_publisher(PoseStamped, 'exploration/next_touch', LATCHED_QOS)
         self._touches = self.create_publisher(MarkerArray, 'exploration/next_touches', LATCHED_QOS)
@@ -105,6 +114,13 @@ class ExplorationNode(Node):
             self._frame_id = msg.header.frame_id or 'object'
             self._version += 1
 
+    def _on_seen(self, msg: PointCloud2) -> None:
+        points = seen_points(from_point_cloud2(msg))
+        with self._lock:
+            self._seen.append(points)
+            if self.get_parameter('camera').value:
+                self._version += 1
+
     def _work_loop(self) -> None:
         while not self._stop.is_set():
             self._wake.wait()
@@ -120,6 +136,7 @@ class ExplorationNode(Node):
     def _predict(self) -> None:
         with self._lock:
             cells, frame_id, version, mode = self._cells, self._frame_id, self._version, self._mode
+            seen = list(self._seen) if self.get_parameter('camera').value else []
         if cells is None or version == self._done or len(cells) < 2:
             return
         if mode is None and time.monotonic() - self._started < MODE_WAIT:
@@ -135,7 +152,9 @@ class ExplorationNode(Node):
         up, on_support = MODE_ORIENTATION.get(mode, ((0.0, 0.0, 1.0), False))
         started = time.monotonic()
         guidance = guide(centres, cells['intensity'], lattice.resolution, self.parameters,
-                         up=up, on_support=on_support, frame_id=frame_id, prior=self._prior)
+                         up=up, on_support=on_support, frame_id=frame_id, prior=self._prior,
+                         seen=np.concatenate([p for p, _ in seen]) if seen else None,
+                         seen_from=np.concatenate([v for _, v in seen]) if seen else None)
         if self._prior is None and not guidance.surface.empty:
             self._prior, self._prior_cells = guidance.surface.prior, occupied
         self._publish(guidance)

@@ -14,7 +14,9 @@ Publishes, reliable and transient-local (a late subscriber gets the latest):
 ``occupancy/textured`` (every occupied cell with ``x y z intensity rgb textured``), the
 last re-coloured from the last pair on every map update, and ``vision/cloud``: the vision
 local map (paper eqs. 5-7, vision_model.py) on the occupancy grid, every pair's object
-pixels (scene_segmentation.py) integrated once, for the occupancy node's fusion.
+pixels (scene_segmentation.py) integrated once, for the occupancy node's fusion; and
+``stereo/object``: those object pixels' points with the camera's position (``x y z vp_x
+vp_y vp_z``, cloud_layouts.py), for the exploration node's completed surface.
 
 A pair that cannot be used (sizes that differ, an unsupported encoding, a camera_info
 inconsistent with the image or with a zero focal length, a right P without a baseline) gets
@@ -48,7 +50,7 @@ from inhand_common.ros_names import station_pose_topic
 from inhand_common.ros_parameters import declare_parameters
 from inhand_common.ros_time import stamp_from_seconds
 from inhand_common.ros_transforms import Transform, TransformPublisher
-from inhand_mapping.cloud_layouts import textured_cells, vision_cells
+from inhand_mapping.cloud_layouts import seen_cloud, textured_cells, vision_cells
 from inhand_mapping.graph_mode import GraphModeQuery
 from inhand_mapping.pose_cdr import decode_pose_stamped_many, stamp_seconds
 from inhand_mapping.qos import LATCHED_QOS
@@ -73,6 +75,7 @@ IMAGE_QOS = qos_profile_sensor_data          # best-effort, depth 5
 RELIABLE_IMAGE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 POSE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 POINT_FIELDS = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')])
+MAX_OBJECT_POINTS = 20_000   # stereo/object's points per pair at most (evenly thinned beyond)
 
 
 class StereoNode(Node):
@@ -124,6 +127,7 @@ class StereoNode(Node):
         self._points = self.create_publisher(PointCloud2, 'stereo/points', LATCHED_QOS)
         self._textured = self.create_publisher(PointCloud2, 'occupancy/textured', LATCHED_QOS)
         self._vision = self.create_publisher(PointCloud2, 'vision/cloud', LATCHED_QOS)
+        self._object = self.create_publisher(PointCloud2, 'stereo/object', LATCHED_QOS)
         # The camera on the tracker (camera_pose, from calibrate_camera_tracker), latched.
         self.frames = config.frames
         self.transforms = TransformPublisher(self)
@@ -274,10 +278,16 @@ class StereoNode(Node):
 
     def _publish_vision(self, placed: PlacedShot, stamp: Any) -> None:
         started = time.perf_counter()
-        updated, segmentation = placed.integrate_into(self.vision, self.config.camera_pose,
-                                                          self.config.segmentation)
+        seen, segmentation = placed.object_points(self.config.camera_pose, self.vision.spec,
+                                                  self.config.segmentation)
+        updated = placed.integrate_segmented(self.vision, self.config.camera_pose, segmentation)
         cells = vision_cells(self.vision.spec, self.vision.log_odds)
         self._vision.publish(serialize_point_cloud2(cells, self.frames.map_frame, stamp.sec, stamp.nanosec))
+        # the object's points for the exploration node: every few, at most MAX_OBJECT_POINTS
+        step = max(1, -(-len(seen) // MAX_OBJECT_POINTS))
+        self._object.publish(serialize_point_cloud2(
+            seen_cloud(seen[::step], placed.camera_in_map(self.config.camera_pose)),
+            self.frames.map_frame, stamp.sec, stamp.nanosec))
         self.get_logger().info(
             f'vision map: pair {self.vision.exposures} updated {updated} cells '
             f'from {int(segmentation.keep.sum())} object pixels (support plane '
