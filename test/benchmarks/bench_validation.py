@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inhand_common.ground_truth import CONTACT_TRUTH_EXPLORED, load_truth, truth_path
+from inhand_common.ground_truth import CONTACT_TRUTH_EXPLORED, load_truth
 from inhand_tools.map_cells import load_map
 from inhand_tools.map_quality import map_metrics, one_touch_oracle, surface_truth
 
@@ -55,7 +55,9 @@ def f_target(rate: float, speed: float, seconds: float) -> float:
 
 
 def score(bag: Path, output: Path, overrides: list[str]) -> dict:
-    truth = load_truth(truth_path(bag))
+    # the folder's own format (a set of ours has the simulator's sidecar beside it too, in
+    # the object frame: not this one)
+    truth = load_truth(bag.parent / f'{bag.name}_truth.npz')
     mode = 'static' if truth.static else 'tracked'
     config = WORKSPACE / 'config' / ('mapping_static.yaml' if truth.static else 'mapping.yaml')
     done = subprocess.run([str(BIN / 'build_map'), str(bag), '--config', str(config),
