@@ -10,8 +10,9 @@ with bag_replay over real DDS,
 waits for the last registered points to be integrated, calls occupancy/save, stops the
 nodes, then renders the map (render_map), extracts its shape (extract_shape: surface mesh,
 superquadric parts and grasps, NAME_shape.png), predicts its surface and where to touch next
-(predict_surface: NAME_uncertainty.png) and, when the bag has a ground-truth sidecar
-(BAG.truth.npz, written by simulate_session), prints its metrics (map_metrics). The
+(predict_surface, with the bag's stereo pairs when it has any: NAME_uncertainty.png) and,
+when the bag has a ground-truth sidecar (BAG.truth.npz, written by simulate_session), prints
+its metrics (map_metrics). The
 config defaults to config/mapping.yaml (tracked object) when the bag has an object sensor
 topic, else config/mapping_static.yaml. Only the graph's inputs are replayed (driver poses,
 stereo images and camera infos), so a bag recorded from a live run, which also holds maps
@@ -160,9 +161,11 @@ def replay(bag: Path, config: Path | None, output: Path, name: str, rate_args: l
             if group.run('shape', ['extract_shape', str(npz), '--output-dir', str(output), '--quiet',
                                    f'--up={up}', *configs]) != 0:
                 return 1
-            # what the map does not know yet, and where to touch next (the map records the mode)
-            if group.run('predict', ['predict_surface', str(npz), '--output-dir', str(output),
-                                     '--quiet', f'--up={up}', *configs]) != 0:
+            # what the map does not know yet, and where to touch next (the map records the
+            # mode), with what the bag's camera saw, as the live exploration node has it
+            if group.run('predict', ['predict_surface', str(npz), '--bag', str(bag),
+                                     '--output-dir', str(output), '--quiet', f'--up={up}',
+                                     *configs]) != 0:
                 return 1
         if truth.exists():
             if group.run('metrics', ['map_metrics', str(npz), '--truth', str(truth), '--bag',

@@ -64,9 +64,9 @@ the tracker's). :func:`load_truth` turns it into a :class:`GroundTruth` with one
 object pose (so the map's default frame needs no move), no stray points (the format has
 none), normals estimated from the samples (:func:`estimated_normals`, turned towards the
 free space around the object: only the pictures' shading and the mean offset along the
-normal use them) and ``settings`` saying so, with
-that format's own explored surface (within :data:`CONTACT_TRUTH_EXPLORED` of a contact).
-:func:`truth_path` finds either sidecar.
+normal use them) and ``settings`` saying so, with that format's own explored surface
+(within :data:`CONTACT_TRUTH_EXPLORED` of a contact). :func:`truth_path` finds either
+sidecar, the simulator's first.
 
 Which frame a map is in: a tracked map (``config/mapping.yaml``, registration ``tracked``)
 is in the ``object`` frame, which is the object sensor's frame; the truth puts the object
