@@ -26,7 +26,7 @@ from inhand_shape.next_touch import SEPARATION, next_touches
 from inhand_shape.superquadric import Superquadric
 from inhand_shape.surface_mesh import oriented_normals
 from inhand_shape.touch_guidance import GUIDANCE_PARAMETERS, MODE_ORIENTATION, guide, std_colours
-from pose_sessions import sphere_session, write_pose_bag
+from pose_sessions import fibonacci_sphere, sphere_session, write_pose_bag
 
 WORKSPACE = Path(__file__).resolve().parents[1]
 RESOLUTION = 0.005
@@ -85,17 +85,10 @@ def test_the_predicted_surface_follows_the_touched_cap_and_closes_the_sphere_uns
     assert band.min() < surface.settings.signal_std < band.max()
 
 
-def _sphere_points(count: int, radius: float = RADIUS) -> np.ndarray:
-    i = np.arange(count) + 0.5
-    polar, azimuth = np.arccos(1.0 - 2.0 * i / count), np.pi * (1.0 + np.sqrt(5.0)) * i
-    return radius * np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar),
-                              np.cos(polar)], axis=1)
-
-
 def test_what_a_camera_saw_is_surface_and_the_space_in_front_of_it_free():
     touched, free = _sphere_cap(z_above=0.02)        # a small cap touched at the top
     camera = np.array([0.3, 0.0, 0.0])               # the camera looks at the sphere's +x side
-    points = _sphere_points(40_000)
+    points = fibonacci_sphere(40_000, RADIUS)
     seen = points[(points[:, 0] > 0.01) & (points @ (camera / 0.3) > 0)]
     map_cells = np.concatenate([touched, free])
     known = map_cells
@@ -130,7 +123,7 @@ def test_the_completed_surface_follows_what_the_camera_saw_where_no_finger_went(
     centres = np.concatenate([touched, free])
     probabilities = np.concatenate([np.full(len(touched), 0.9), np.full(len(free), 0.3)])
     camera = np.array([0.3, 0.0, -0.1])
-    points = _sphere_points(40_000)
+    points = fibonacci_sphere(40_000, RADIUS)
     seen = points[np.einsum('ij,ij->i', points, camera - points) > 0]     # the side it faces
     alone = predict_map_surface(centres, probabilities, RESOLUTION)
     both = predict_map_surface(centres, probabilities, RESOLUTION, seen=seen, seen_from=camera)

@@ -350,6 +350,7 @@ def test_the_exploration_node_completes_the_surface_with_what_the_stereo_node_sa
 
     from inhand_common.point_cloud import from_point_cloud2, to_point_cloud2
     from inhand_mapping.cloud_layouts import MAP_CELL_DTYPE, seen_cloud
+    from pose_sessions import fibonacci_sphere
     from ros_helpers import BackgroundNode, running
     radius, h = 0.04, 0.005
     axis = np.arange(-0.07, 0.07, h) + h / 2
@@ -360,10 +361,7 @@ def test_the_exploration_node_completes_the_surface_with_what_the_stereo_node_sa
     for k, name in enumerate('xyz'):
         cells[name] = cap[:, k]
     cells['intensity'], cells['hits'] = 0.95, 3
-    i = np.arange(20_000) + 0.5
-    polar, azimuth = np.arccos(1.0 - 2.0 * i / len(i)), np.pi * (1.0 + np.sqrt(5.0)) * i
-    sphere = radius * np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar),
-                                np.cos(polar)], axis=1)
+    sphere = fibonacci_sphere(20_000, radius)
     camera = np.array([0.3, 0.0, -0.1])
     seen = sphere[np.einsum('ij,ij->i', sphere, camera - sphere) > 0]
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,

@@ -220,6 +220,7 @@ def validation_check(folder: Path) -> None:
     """The completed surface on the independent generator's sessions (a check, never tuned
     on): each mapped by build_map with the shipped files, then predicted with the shipped
     settings, against its whole true surface."""
+    from inhand_common.ground_truth import load_truth
     from inhand_shape.implicit_surface import predict_map_surface
     from inhand_tools.commands.build_map import main as build_map
     from inhand_tools.map_cells import load_map
@@ -232,12 +233,12 @@ def validation_check(folder: Path) -> None:
     rng = np.random.default_rng(0)
     gains, calibration = [], []
     for bag in bags:
-        truth = np.load(VALIDATION / f'{bag.name}_truth.npz')
-        config = CONFIG / ('mapping_static.yaml' if str(truth['mode']) == 'static' else 'mapping.yaml')
+        truth = load_truth(VALIDATION / f'{bag.name}_truth.npz')
+        config = CONFIG / ('mapping_static.yaml' if truth.static else 'mapping.yaml')
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             build_map([str(bag), '--config', str(config), '--output-dir', str(folder), '--quiet', '--force'])
         cells = load_map(Path(folder) / f'{bag.name}.npz')
-        whole = SurfaceTruth(truth['surface'], truth['surface'])
+        whole = SurfaceTruth(truth.surface_points, truth.surface_points)
         map_f = point_metrics(cells.centres[cells.probabilities >= 0.8], whole)['fscore_at_5mm']
         surface = predict_map_surface(cells.centres, cells.probabilities, cells.lattice.resolution)
         samples = area_samples(surface.vertices, surface.faces, 20000, rng)

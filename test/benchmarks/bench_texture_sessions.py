@@ -102,16 +102,15 @@ def validation_session(name: str, azimuth: int, folder: Path) -> Path:
     from point_render import render_samples
     from rosbags.highlevel import AnyReader
 
-    from inhand_common.ground_truth import write_truth
+    from inhand_common.ground_truth import load_truth, write_truth
     from inhand_common.rotations import quaternion_to_matrix
     from inhand_sim.stereo_rig import StereoRig
     from inhand_sim.textures import surface_colour
     bag = folder / f'{name}_az{azimuth}'
     if bag.exists():
         return bag
-    truth = np.load(VALIDATION / f'{name}_truth.npz')
-    surface = np.asarray(truth['surface'], dtype=float)
-    static = str(truth['mode']) == 'static'
+    truth = load_truth(VALIDATION / f'{name}_truth.npz')
+    surface, static = truth.surface_points, truth.static
     with AnyReader([VALIDATION / name]) as reader:
         first = next(reader.messages())[1]      # the pair: at the session's first stamp
         position, quaternion = np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])
@@ -132,10 +131,10 @@ def validation_session(name: str, azimuth: int, folder: Path) -> Path:
     shot = render_samples(rig, placed, albedo, np.random.default_rng(1000 + azimuth))
     _copy_with_pair(VALIDATION / name, bag, shot, first)
     write_truth(Path(f'{bag}.truth.npz'), {
-        'object_name': name, 'static': static, 'rate': float(truth['rate']), 'seed': 0,
+        'object_name': name, 'static': static, 'rate': truth.rate, 'seed': 0,
         'settings': {'validation_session': name, 'camera_azimuth_deg': azimuth},
-        'surface_points': surface, 'surface_normals': np.zeros_like(surface),
-        'contacts': truth['contacts'], 'contact_times': truth['contact_t'],
+        'surface_points': surface, 'surface_normals': truth.surface_normals,
+        'contacts': truth.contacts, 'contact_times': truth.contact_times,
         'stray_points': np.zeros((0, 3)), 'stray_times': np.zeros(0),
         'object_times': np.zeros(1), 'object_positions': position[None],
         'object_quaternions': quaternion[None], 'surface_colours': albedo,
@@ -190,8 +189,7 @@ def scores(bag: Path, folder: Path) -> dict:
     from scipy.spatial import cKDTree
 
     from inhand_common.ground_truth import in_frame, load_truth
-    from inhand_mapping.mapping_config import load_parameters
-    from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+    from inhand_tools.bag_stereo_shot import read_configured_shot
     from inhand_tools.commands.build_map import main as build_map
     from inhand_tools.map_cells import load_map
     from inhand_tools.map_quality import colour_metrics, seen_cells, surface_truth
@@ -204,8 +202,7 @@ def scores(bag: Path, folder: Path) -> dict:
         build_map([str(bag), *[a for c in configs for a in ('--config', c)], '--output-dir',
                    str(out), '--quiet', '--force'])
     cells = load_map(out / f'{bag.name}.npz', None)
-    registration, occupancy = load_parameters(configs, {})
-    shot, why = read_bag_shot(bag, stereo_config_for_map(configs, registration, occupancy))
+    shot, why = read_configured_shot(bag, configs)
     if shot is None:
         raise SystemExit(f'{bag}: {why}')
     truth = in_frame(truth, 'tracker' if truth.static else 'object')

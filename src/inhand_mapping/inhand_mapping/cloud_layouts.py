@@ -72,10 +72,11 @@ SEEN_POINT_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'),
 def seen_cloud(points, viewpoint) -> np.ndarray:
     """``stereo/object``'s points: ``points`` (K, 3) seen from ``viewpoint`` (3,)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    camera = np.asarray(viewpoint, dtype=np.float64).reshape(3)
     cloud = np.empty(len(points), dtype=SEEN_POINT_DTYPE)
     for axis, name in enumerate('xyz'):
         cloud[name] = points[:, axis]
-        cloud[f'vp_{name}'] = float(np.asarray(viewpoint, dtype=np.float64).reshape(3)[axis])
+        cloud[f'vp_{name}'] = camera[axis]
     return cloud
 
 

@@ -19,14 +19,15 @@ import numpy as np
 
 from inhand_common.bag_source import BagSource
 from inhand_mapping.cloud_layouts import vision_cells, vision_log_odds
-from inhand_mapping.mapping_config import OccupancyConfig, RegistrationConfig
+from inhand_mapping.mapping_config import OccupancyConfig, RegistrationConfig, load_parameters
 from inhand_stereo.bag_stereo import BagStereo, has_stereo_pair, read_bag_stereo
 from inhand_stereo.shot_placement import PlacedShot
 from inhand_stereo.stereo_config import StereoConfig, load_stereo_config
 from inhand_stereo.texture import CellTexture
 from inhand_stereo.vision_model import VisionMap
 
-__all__ = ['BagShot', 'bag_has_stereo_pair', 'read_bag_shot', 'stereo_config_for_map']
+__all__ = ['BagShot', 'bag_has_stereo_pair', 'read_bag_shot', 'read_configured_shot',
+           'stereo_config_for_map']
 
 
 def stereo_config_for_map(configs: Sequence[str], registration: RegistrationConfig,
@@ -122,3 +123,13 @@ def read_bag_shot(bag: Path, config: StereoConfig) -> tuple[BagShot | None, str 
         reasons = '; '.join(pairs.refused) or 'no complete pair'
         return None, f'no usable stereo pair ({reasons})'
     return BagShot(pairs.first, config, pairs), None
+
+
+def read_configured_shot(bag: Path, configs: Sequence[str],
+                         overrides: Mapping[str, Any] | None = None
+                         ) -> tuple[BagShot | None, str | None]:
+    """:func:`read_bag_shot` with the parameters of the ROS parameter files ``configs``: their
+    ``stereo_node`` sections, placed by their registration and occupancy sections
+    (``overrides`` on those, e.g. the map's ``mode``)."""
+    registration, occupancy = load_parameters(list(configs), dict(overrides or {}))
+    return read_bag_shot(Path(bag), stereo_config_for_map(configs, registration, occupancy))

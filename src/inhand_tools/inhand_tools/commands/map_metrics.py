@@ -53,9 +53,8 @@ import numpy as np
 
 from inhand_common.cli_types import command_parser
 from inhand_common.ground_truth import FRAMES, GroundTruth, default_frame, in_frame, load_truth
-from inhand_mapping.mapping_config import load_parameters
 from inhand_tools.bag_points import BagPoints, bag_mode_for_frame, read_bag_points
-from inhand_tools.bag_stereo_shot import BagShot, read_bag_shot, stereo_config_for_map
+from inhand_tools.bag_stereo_shot import BagShot, read_configured_shot
 from inhand_tools.fusion_quality import fusion_scores, fusion_table
 from inhand_tools.map_cells import MapCells, load_map
 from inhand_tools.map_quality import (
@@ -145,8 +144,7 @@ def _read_shot(bag: Path | None, configs: list[str], mode: str, truth: GroundTru
     problem = stereo_truth_problem(truth)
     if problem:
         return None, problem
-    registration, occupancy = load_parameters(configs, {'mode': mode})
-    shot, why = read_bag_shot(bag, stereo_config_for_map(configs, registration, occupancy))
+    shot, why = read_configured_shot(bag, configs, {'mode': mode})
     if shot is None:
         return None, why or f'{bag} holds no stereo pair'
     return shot, shot_problem(shot, truth)

@@ -38,9 +38,8 @@ import cv2
 import numpy as np
 
 from inhand_common.parameters import ParameterError
-from inhand_mapping.mapping_config import load_parameters
 from inhand_shape.touch_guidance import GUIDANCE_PARAMETERS, guide, write_guidance_files
-from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+from inhand_tools.bag_stereo_shot import read_configured_shot
 from inhand_tools.drawing import UP_AXES
 from inhand_tools.guidance_figure import guidance_figure
 from inhand_tools.map_cells import load_map
@@ -113,8 +112,7 @@ def camera_points(bag: Path, configs: list[str], mode: str | None
     """The object's points (K, 3, map frame) of the bag's stereo pairs and where the camera
     was for each, placed as build_map places them (``mode``: the map's registration mode,
     else the files'), and one line saying what was read; None when there are none."""
-    registration, occupancy = load_parameters(configs, {} if mode is None else {'mode': mode})
-    shot, why = read_bag_shot(bag, stereo_config_for_map(configs, registration, occupancy))
+    shot, why = read_configured_shot(bag, configs, None if mode is None else {'mode': mode})
     if shot is None:
         return None, f'{bag}: {why or "no stereo pair in the bag"}; the touch map alone'
     points, cameras = shot.object_points()
