@@ -1,11 +1,17 @@
 """The emulated device and its motion sources, without ROS."""
 
+import os
+import time
+import uuid
+
 import numpy as np
 import pytest
+import serial
 
 from inhand_common.ros_names import station_pose_topic
 from inhand_common.rotations import quaternion_normalize
 from polhemus_liberty.device_model import LibertyDevice
+from polhemus_liberty.emulator import LibertyEmulator
 from polhemus_liberty.motion import BuiltinMotion, load_plhm_text, load_pose_bag
 from polhemus_liberty.protocol import (
     CTRL_U,
@@ -42,6 +48,41 @@ def test_device_power_on_state_and_commands():
     assert parser.feed(device.frame(now=0.3))[0].frame_count == first + 2
     device.receive(b'Q\r', now=0.4)
     assert parser.feed(device.frame(now=0.5))[0].frame_count == 1
+
+
+def _wait(condition, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f'no {what} within {timeout} s'
+        time.sleep(0.01)
+
+
+def test_a_replugged_device_counts_what_it_streams_before_the_host_is_back():
+    """After a USB unplug the device goes on streaming; until the host writes to the port
+    again nobody reads it, and the emulator counts those frames (the soak's allowance)."""
+    port = f'/tmp/liberty-replug-{os.getpid()}-{uuid.uuid4().hex[:6]}'
+    with LibertyEmulator(BuiltinMotion(), port) as emulator:
+        with serial.Serial(port, timeout=0.1) as host:
+            host.write(b'C\r')       # continuous output
+            _wait(lambda: emulator.stats.frames_sent >= 24, 5, 'streaming')
+        assert emulator.stats.frames_before_host == 0
+        emulator.disconnect(0.2)
+        _wait(lambda: emulator.stats.disconnects == 1 and emulator.link.connected, 5,
+              'the port back')
+        back = time.monotonic()
+        time.sleep(0.25)             # no host: what the device sends now reaches nobody
+        unread = emulator.stats.frames_before_host
+        rate = emulator.device.state.frame_rate
+        assert 0.2 * rate <= unread <= (time.monotonic() - back + 0.05) * rate, (unread, rate)
+        assert emulator.device.state.continuous
+        with serial.Serial(port, timeout=0.1) as host:
+            host.write(b'P')          # the host is back
+            _wait(lambda: emulator.device.commands_seen[-1:] == [b'P'], 5, 'the command')
+            sent = emulator.stats.frames_sent
+            host.write(b'C\r')
+            _wait(lambda: emulator.stats.frames_sent >= sent + 24, 5, 'streaming again')
+        assert emulator.stats.frames_before_host == unread
+        assert f'before the host came back {unread}' in emulator.status()
 
 
 def test_hemisphere_picks_the_solution_on_its_side():

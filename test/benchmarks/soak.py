@@ -21,7 +21,8 @@ map is saved; then the run is checked:
   ``rss.png`` with the faults and the kill marked;
 * frames lost only where a fault removed them: the bag holds one stamp for each frame the
   driver published; of the frames the emulator sent, the driver published all but at most
-  2 per fault that damages the stream (garbage, drop, disconnect) and 5 at the stop; and
+  2 per fault that damages the stream (garbage, drop, disconnect), 5 at the stop and those
+  the re-plugged device sent before the driver had the port open again; and
   every outage lies in the window of a fault (a step of over 50 ms between two frame
   stamps, unless the 2 s either side hold every frame their length takes: then the frames
   came late, a process that did not read for a while, and none is missing);
@@ -435,6 +436,7 @@ class Soak:
         sent = self._number(r'liberty_emulator: stopped;.*frames sent (\d+)')
         full = self._number(r'liberty_emulator: stopped;.*lost (\d+)')
         skipped = self._number(r'liberty_emulator: stopped;.*skipped (\d+)')
+        unread = self._number(r'liberty_emulator: stopped;.*before the host came back (\d+)') or 0
         published = self._number(r'stopped: (\d+) frames published')
         incomplete = self._number(r'frames published, \d+ dropped, (\d+) incomplete')
         out_for = {kind: seconds for kind, _, seconds in FAULTS}
@@ -459,13 +461,16 @@ class Soak:
             else:
                 explained[cause] = explained.get(cause, 0) + 1
         lost = None if sent is None or published is None else sent - published
+        # A re-plugged device streams before the driver has the port open again: what it
+        # sends meanwhile reaches no reader (the emulator counts it), as with a real cable.
         allowed = FRAMES_PER_DAMAGE * sum(kind in DAMAGING for _, kind, _ in self.faults) + \
-            FRAMES_AT_STOP
+            FRAMES_AT_STOP + unread
         print(f'\nframes: emulator sent {sent} (skipped {skipped} by the skip faults, {full} '
               f'lost to a full buffer); driver published {published} ({incomplete} incomplete); '
               f'the bag holds {len(frames)}; sent but not published: {lost} (at most '
               f'{allowed}: {FRAMES_PER_DAMAGE} per garbage, drop or disconnect, '
-              f'{FRAMES_AT_STOP} at the stop)')
+              f'{FRAMES_AT_STOP} at the stop, {unread} sent by the re-plugged device before '
+              f'the driver was back)')
         print(f'  steps over {OUTAGE * 1000:.0f} ms between frame stamps: {len(outages)}; '
               f'frames late, none missing: {len(late)}'
               f'{f" (longest {max(late) * 1000:.0f} ms)" if late else ""}; outages in a fault '
@@ -481,6 +486,7 @@ class Soak:
         if unexplained:
             self.problems.append(f'{len(unexplained)} outage(s) outside any fault')
         return {'sent': sent, 'skipped': skipped, 'lost_buffer_full': full,
+                'before_the_host_came_back': unread,
                 'published': published, 'incomplete': incomplete, 'in_bag': len(frames),
                 'sent_not_published': lost, 'allowed': allowed,
                 'outages': len(outages) - len(late), 'late_not_lost': len(late),

@@ -9,7 +9,9 @@ thread (the CLI maps console commands and a schedule onto them):
 * ``skip_frames(n)``: n frames counted by the device but never sent;
 * ``pause(seconds)``: the device stalls, then carries on streaming by itself;
 * ``stall()``: the device stops streaming until the host restarts it (reset sequence);
-* ``disconnect(seconds)``: the port vanishes (USB unplug) and reappears under its name.
+* ``disconnect(seconds)``: the port vanishes (USB unplug) and reappears under its name,
+  the device still streaming as it was; the frames it sends before the host writes to the
+  port again reach no reader (``EmulatorStats.frames_before_host``).
 """
 
 from __future__ import annotations
@@ -39,6 +41,9 @@ class EmulatorStats:
     bytes_cut: int = 0
     disconnects: int = 0
     late_ticks: int = 0
+    # sent after a re-plug and before the host wrote to the port again: a real device's
+    # frames that no host was reading (a driver's set-up discards them)
+    frames_before_host: int = 0
 
 
 class LibertyEmulator:
@@ -67,6 +72,7 @@ class LibertyEmulator:
         self._reappear_at: float | None = None
         self._unplug_for: float | None = None
         self._stall = False
+        self._host_back = True      # False from a re-plug until the host writes again
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._out = bytearray()
@@ -124,7 +130,8 @@ class LibertyEmulator:
         link = f'{self.port} -> {self.link.slave_name}' if self.link.connected else \
             f'{self.port} (unplugged)'
         return (f'{link} | {streaming} | frames sent {self.stats.frames_sent} | '
-                f'lost {self.stats.frames_lost_buffer_full} | skipped {self.stats.frames_skipped}')
+                f'lost {self.stats.frames_lost_buffer_full} | skipped {self.stats.frames_skipped} | '
+                f'before the host came back {self.stats.frames_before_host}')
 
     # ------------------------------------------------------------------ loop
     def _rate(self) -> float:
@@ -146,12 +153,14 @@ class LibertyEmulator:
                 if self._reappear_at is not None and now >= self._reappear_at:
                     self._reappear_at = None
                     self.link.plug()
+                    self._host_back = False
             if not self.link.connected:
                 time.sleep(0.005)
                 next_tick = time.monotonic()
                 continue
             data = self.link.read(min(max(next_tick - now, 0.0), 0.01))
             if data:
+                self._host_back = True
                 self._out += self.device.receive(data, time.monotonic())
             now = time.monotonic()
             period = 1.0 / self._rate()
@@ -194,6 +203,8 @@ class LibertyEmulator:
             self.stats.bytes_cut += min(cut, len(frame))
         self._out += frame
         self.stats.frames_sent += 1
+        if not self._host_back:
+            self.stats.frames_before_host += 1
         if self.sent_frames.maxlen:
             self.sent_frames.append((device.frame_count, dict(device.poses)))
 
