@@ -6,10 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from inhand_common.ground_truth import load_truth
-from inhand_mapping.mapping_config import load_parameters
 from inhand_mapping.occupancy import GridSpec
 from inhand_stereo.scene_segmentation import segment_object
-from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+from inhand_tools.bag_stereo_shot import read_configured_shot
 from ros_helpers import WORKSPACE
 
 SPEC = GridSpec(0.3, 0.005, (0.0, 0.0, 0.0))
@@ -71,10 +70,9 @@ def test_the_same_points_give_the_same_answer_and_nothing_finite_gives_nothing()
 def test_the_bundled_static_cat_against_its_true_object_mask():
     configs = [str(WORKSPACE / 'config' / 'mapping_static.yaml'),
                str(WORKSPACE / 'config' / 'stereo.yaml')]
-    registration, occupancy = load_parameters(configs, {})
-    stereo = stereo_config_for_map(configs, registration, occupancy)
-    shot, why = read_bag_shot(WORKSPACE / 'bags' / 'cat_static', stereo)
+    shot, why = read_configured_shot(WORKSPACE / 'bags' / 'cat_static', configs)
     assert shot is not None, why
+    stereo = shot.config
     truth = load_truth(WORKSPACE / 'bags' / 'cat_static.truth.npz')
     assert truth.stereo is not None
     points = shot.placed.pixel_points_in_map(stereo.camera_pose)

@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from inhand_common.ground_truth import TRUTH_KEYS, in_frame, load_truth, write_truth
-from inhand_mapping.mapping_config import load_parameters
-from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+from inhand_tools.bag_stereo_shot import read_configured_shot
 from inhand_tools.commands.build_map import main as build_map_main
 from inhand_tools.commands.map_metrics import main as map_metrics_main
 from inhand_tools.map_cells import Lattice, load_map
@@ -66,9 +65,7 @@ def run_metrics(capsys, *args) -> tuple[int, str, str]:
 
 def shot_of(name: str, mode: str):
     configs = [CATS[name], STEREO]
-    registration, occupancy = load_parameters(configs, {'mode': mode})
-    shot, why = read_bag_shot(BAGS / name, stereo_config_for_map(configs, registration,
-                                                                  occupancy))
+    shot, why = read_configured_shot(BAGS / name, configs, {'mode': mode})
     assert shot is not None, why
     return shot
 

@@ -200,15 +200,13 @@ def test_a_bag_with_a_stereo_pair_gives_the_textured_map(tmp_path, request, bag,
 
 def _first_pair_vision(bag):
     """The vision map of a bag's first pair alone (the tracked rig of the shipped files)."""
-    from inhand_mapping.mapping_config import load_parameters
     from inhand_stereo.vision_model import VisionMap
-    from inhand_tools.bag_stereo_shot import read_bag_shot, stereo_config_for_map
+    from inhand_tools.bag_stereo_shot import read_configured_shot
     configs = [str(WORKSPACE / 'config' / 'mapping.yaml'),
                str(WORKSPACE / 'config' / 'stereo.yaml')]
-    registration, occupancy = load_parameters(configs, {})
-    stereo = stereo_config_for_map(configs, registration, occupancy)
-    shot, why = read_bag_shot(bag, stereo)
+    shot, why = read_configured_shot(bag, configs)
     assert shot is not None and len(shot.pairs.placed) == 2, why
+    stereo = shot.config
     vision = VisionMap(stereo.grid, stereo.vision, stereo.clamp)
     shot.placed.integrate_into(vision, stereo.camera_pose, stereo.segmentation)
     return vision.log_odds
