@@ -25,6 +25,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from inhand_tools.launching import call_trigger as launching_call_trigger
 from inhand_tools.launching import executable
+from polling import wait_until
 
 WORKSPACE = pathlib.Path(__file__).resolve().parents[1]
 
@@ -166,12 +167,7 @@ class TopicListener(BackgroundNode):
                                                                '_level': status.level[0]}
 
     def wait_for(self, predicate, timeout: float, what: str = 'condition') -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if predicate():
-                return
-            time.sleep(0.05)
-        raise AssertionError(f'timed out after {timeout} s waiting for {what}')
+        wait_until(predicate, timeout, what)
 
 
 @contextlib.contextmanager

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from inhand_mapping.map_io import load_npz
+from polling import wait_until
 from pose_sessions import sphere_session
 from ros_helpers import WORKSPACE, PosePublisher, running
 
@@ -19,10 +20,7 @@ CONFIG = str(WORKSPACE / 'config' / 'mapping_static.yaml')
 
 
 def wait_for_file(path, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not path.exists():
-        assert time.monotonic() < deadline, f'no {path}'
-        time.sleep(0.1)
+    wait_until(path.exists, timeout, str(path), period=0.1)
 
 
 def test_autosave_kill_9_and_resume_from_the_autosave(tmp_path):

@@ -20,6 +20,7 @@ from polhemus_liberty.protocol import (
     OutputList,
     decode_station_map,
 )
+from polling import wait_until
 
 
 def test_device_power_on_state_and_commands():
@@ -50,13 +51,6 @@ def test_device_power_on_state_and_commands():
     assert parser.feed(device.frame(now=0.5))[0].frame_count == 1
 
 
-def _wait(condition, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f'no {what} within {timeout} s'
-        time.sleep(0.01)
-
-
 def test_a_replugged_device_counts_what_it_streams_before_the_host_is_back():
     """After a USB unplug the device goes on streaming; until the host writes to the port
     again nobody reads it, and the emulator counts those frames (the soak's allowance)."""
@@ -64,11 +58,11 @@ def test_a_replugged_device_counts_what_it_streams_before_the_host_is_back():
     with LibertyEmulator(BuiltinMotion(), port) as emulator:
         with serial.Serial(port, timeout=0.1) as host:
             host.write(b'C\r')       # continuous output
-            _wait(lambda: emulator.stats.frames_sent >= 24, 5, 'streaming')
+            wait_until(lambda: emulator.stats.frames_sent >= 24, 5, 'streaming')
         assert emulator.stats.frames_before_host == 0
         emulator.disconnect(0.2)
-        _wait(lambda: emulator.stats.disconnects == 1 and emulator.link.connected, 5,
-              'the port back')
+        wait_until(lambda: emulator.stats.disconnects == 1 and emulator.link.connected, 5,
+                   'the port back')
         back = time.monotonic()
         time.sleep(0.25)             # no host: what the device sends now reaches nobody
         unread = emulator.stats.frames_before_host
@@ -77,10 +71,10 @@ def test_a_replugged_device_counts_what_it_streams_before_the_host_is_back():
         assert emulator.device.state.continuous
         with serial.Serial(port, timeout=0.1) as host:
             host.write(b'P')          # the host is back
-            _wait(lambda: emulator.device.commands_seen[-1:] == [b'P'], 5, 'the command')
+            wait_until(lambda: emulator.device.commands_seen[-1:] == [b'P'], 5, 'the command')
             sent = emulator.stats.frames_sent
             host.write(b'C\r')
-            _wait(lambda: emulator.stats.frames_sent >= sent + 24, 5, 'streaming again')
+            wait_until(lambda: emulator.stats.frames_sent >= sent + 24, 5, 'streaming again')
         assert emulator.stats.frames_before_host == unread
         assert f'before the host came back {unread}' in emulator.status()
 

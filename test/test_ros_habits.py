@@ -29,6 +29,7 @@ from inhand_mapping.node_health import (
 )
 from inhand_mapping.occupancy import IntegrationCounts
 from inhand_mapping.registration import RegistrationStats
+from polling import wait_until
 from pose_sessions import sphere_session, write_pose_bag
 from ros_helpers import (
     WORKSPACE,
@@ -229,10 +230,7 @@ class GraphListener(BackgroundNode):
             return [s for s in self.statuses if s[1].endswith(node_name)]
 
     def wait_for(self, predicate, timeout: float, what: str) -> None:
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            assert time.monotonic() < deadline, f'no {what}'
-            time.sleep(0.1)
+        wait_until(predicate, timeout, what, period=0.1)
 
 
 def test_sim_time_with_and_without_clock(tmp_path):

@@ -17,6 +17,7 @@ from inhand_common.point_cloud import from_point_cloud2
 from inhand_mapping.cloud_layouts import seen_points
 from inhand_mapping.map_io import load_local_maps, load_npz, read_ply
 from inhand_tools.launching import ProcessGroup, mapping_graph
+from polling import wait_until
 from ros_helpers import BackgroundNode, call_trigger, executable_path
 
 pytestmark = pytest.mark.dds
@@ -39,14 +40,14 @@ class LatchedListener(BackgroundNode):
             self.latest[topic] = msg
 
     def wait_for(self, predicate, timeout: float = 60.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        def arrived():
             with self.lock:
-                if predicate(self.latest):
-                    return dict(self.latest)
-            time.sleep(0.1)
-        with self.lock:
-            raise AssertionError(f'only {sorted(self.latest)} arrived')
+                return dict(self.latest) if predicate(self.latest) else None
+
+        def said():
+            with self.lock:
+                return f'wanted topics: only {sorted(self.latest)} arrived'
+        return wait_until(arrived, timeout, said, period=0.1)
 
 
 def _with_fusion(tmp_path, config: str, fusion: str) -> str:
