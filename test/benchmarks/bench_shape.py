@@ -156,7 +156,8 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
             named = int(np.argmin([np.linalg.norm(t.centre - centre) for t in truth_parts]))
         row['graspable_right'] = named == handle
     # the best the fit can do: our decomposition on dense points of the true surface
-    dense = decompose(truth_sample[:4000], resolution=cells.lattice.resolution)
+    # (points on the surface, not cells: no slack)
+    dense = decompose(truth_sample[:4000], resolution=cells.lattice.resolution, slack=0.0)
     row['chamfer_dense'] = _chamfer([p.superquadric for p in dense.parts], truth_sample, rng)
     if len(truth_parts) == 1:
         occupied = cells.probabilities >= 0.8

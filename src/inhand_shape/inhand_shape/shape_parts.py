@@ -10,7 +10,10 @@ shell), and what is left must hang together (26-connected) to be searched again,
 one is that part's rim. Then every cell goes to the part nearest to it and each part is
 fitted again on its own cells (a first fit that had to compromise, a cup's body pulled
 towards its handle, is redone without the other part), and two parts one superquadric
-explains are merged (a shaft cut in two by the holding hand). Every fit but a seed's growth
+explains are merged (a shaft cut in two by the holding hand). Last, each part is fitted once
+more to its cells with their slack (``CELL_SLACK``, superquadric.py: cells, not points): the
+search and the part checks run without it, so it changes the parts' shapes, not which parts
+there are. Every fit but a seed's growth
 is held to its cells (the fit's ``reach``: a shape may not reach far past its last cells,
 so a strip of a shaft touched on one side is a cylinder, not the face of a deep slab the
 support check then refuses); a growing seed is free to reach past them, since that is where
@@ -32,7 +35,7 @@ from scipy import ndimage  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Points, Weights
 from inhand_common.cell_lattice import Lattice, cell_indices
-from inhand_shape.superquadric import REACH_WEIGHT, FitResult, Superquadric, fit_superquadric
+from inhand_shape.superquadric import CELL_SLACK, REACH_WEIGHT, FitResult, Superquadric, fit_superquadric
 
 __all__ = ['EXPLAINED_SHARE', 'MAX_PARTS', 'MIN_PART_CELLS', 'Decomposition', 'Part',
            'decompose']
@@ -117,12 +120,12 @@ def _sheet_reason(points: Points, resolution: float) -> str | None:
 
 
 def _fit_part(points: Points, weights: Weights, members: NDArray[np.intp], resolution: float,
-              start: Superquadric | None = None, reach: float = REACH_WEIGHT
+              start: Superquadric | None = None, reach: float = REACH_WEIGHT, slack: float = 0.0
               ) -> tuple[Part | None, FitResult]:
     """The part fitted to ``members`` (None when it does not explain them), and the fit;
-    ``start`` and ``reach`` as for :func:`fit_superquadric`."""
+    ``start``, ``reach`` and ``slack`` as for :func:`fit_superquadric`."""
     fit = fit_superquadric(points[members], weights[members], resolution=resolution, start=start,
-                           reach=reach)
+                           reach=reach, slack=slack)
     # only the cells on the surface vouch for it: a shape large enough to hold every cell
     # explains nothing
     surface = fit.distances <= resolution     # on_surface of the cells it was fitted to
@@ -192,9 +195,11 @@ def _next_part(points: Points, weights: Weights, pool: NDArray[np.intp], resolut
 
 
 def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution: float = 0.005,
-              max_parts: int = MAX_PARTS) -> Decomposition:
+              max_parts: int = MAX_PARTS, slack: float | None = None) -> Decomposition:
     """The parts of the cells at ``points`` (N, 3) m weighted by ``weights`` (occupancy
-    probabilities), as the module doc describes; ``max_parts`` = 1 fits one superquadric."""
+    probabilities), as the module doc describes; ``max_parts`` = 1 fits one superquadric;
+    ``slack`` as for :func:`fit_superquadric` (0 for points on the surface), used by the
+    final fit of each part."""
     cells = np.asarray(points, dtype=float).reshape(-1, 3)
     w = np.ones(len(cells)) if weights is None else np.asarray(weights, dtype=float)
     everything = np.arange(len(cells))
@@ -226,6 +231,7 @@ def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution
         pool = np.concatenate([g for g in _groups(cells, pool, resolution) if len(g) >= smallest]
                               or [np.zeros(0, dtype=np.intp)])
     parts = _merged(cells, w, _refit(cells, w, parts, resolution, smallest), resolution)
+    parts = _polished(cells, w, parts, resolution, CELL_SLACK if slack is None else slack)
     if not parts:
         return Decomposition([], everything, f'no superquadric explains the {len(cells)} occupied '
                              f'cells (at least {EXPLAINED_SHARE:.0%} on it): they look like '
@@ -241,9 +247,7 @@ def _refit(points: Points, weights: Weights, parts: list[Part], resolution: floa
     """Each cell to its nearest part (inside counts as distance 0), each part fitted again
     on its own cells; parts left with too few cells or not explaining them are dropped."""
     for _ in range(REFITS if len(parts) > 1 else 0):
-        distance = np.stack([np.where(p.superquadric.contains(points), 0.0,
-                                      p.superquadric.surface_distance(points)) for p in parts])
-        owner = np.argmin(distance, axis=0)
+        owner = _owners(points, parts)
         refitted = []
         for k in range(len(parts)):
             members = np.flatnonzero(owner == k)
@@ -254,6 +258,32 @@ def _refit(points: Points, weights: Weights, parts: list[Part], resolution: floa
                 refitted.append(part)
         parts = refitted
     return sorted(parts, key=lambda p: len(p.cells), reverse=True)
+
+
+def _owners(points: Points, parts: list[Part]) -> NDArray[np.intp]:
+    """Each cell's nearest part (inside counts as distance 0)."""
+    distance = np.stack([np.where(p.superquadric.contains(points), 0.0,
+                                  p.superquadric.surface_distance(points)) for p in parts])
+    return np.asarray(np.argmin(distance, axis=0))
+
+
+def _polished(points: Points, weights: Weights, parts: list[Part], resolution: float,
+              slack: float) -> list[Part]:
+    """Each part fitted once more to the cells nearest to it, from where it is, with the
+    cells' ``slack`` (:func:`fit_superquadric`); the part as it was where that fit does not
+    explain its cells."""
+    if slack <= 0.0 or not parts:
+        return parts
+    owner = _owners(points, parts)
+    polished = []
+    for k, part in enumerate(parts):
+        members = np.flatnonzero(owner == k)
+        better = None
+        if len(members) >= MIN_PART_CELLS:
+            better, _ = _fit_part(points, weights, members, resolution, part.superquadric,
+                                  slack=slack)
+        polished.append(part if better is None else better)
+    return sorted(polished, key=lambda p: len(p.cells), reverse=True)
 
 
 def _merged(points: Points, weights: Weights, parts: list[Part], resolution: float) -> list[Part]:
