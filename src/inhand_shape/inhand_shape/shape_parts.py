@@ -10,14 +10,13 @@ shell), and what is left must hang together (26-connected) to be searched again,
 one is that part's rim. Then every cell goes to the part nearest to it and each part is
 fitted again on its own cells (a first fit that had to compromise, a cup's body pulled
 towards its handle, is redone without the other part), and two parts one superquadric
-explains are merged (a shaft cut in two by the holding hand). Last, each part is fitted once
-more to its cells with their slack (``CELL_SLACK``, superquadric.py: cells, not points): the
-search and the part checks run without it, so it changes the parts' shapes, not which parts
-there are. Every fit but a seed's growth
+explains are merged (a shaft cut in two by the holding hand). Every fit but a seed's growth
 is held to its cells (the fit's ``reach``: a shape may not reach far past its last cells,
 so a strip of a shaft touched on one side is a cylinder, not the face of a deep slab the
 support check then refuses); a growing seed is free to reach past them, since that is where
-the rest of its part is.
+the rest of its part is. Last, each part is fitted once more to its nearest cells with their
+slack (``CELL_SLACK``, superquadric.py: "cells, not points"); the search and the part
+checks run without it, so it changes the parts' shapes, not which parts there are.
 
 A part is reported only when it explains its cells: :data:`EXPLAINED_SHARE` of them within
 one cell width of its surface, :data:`SUPPORTED_SHARE` of its surface within

@@ -42,13 +42,13 @@ its 5 mm, so its centre lies up to half a cell or more off the surface, and a to
 cells scatter on both sides of it, by 1.6-3.7 mm on average, not in a Gaussian around it.
 Counted by their squared distance, the farthest cells decide: the benchmark's cylinder (a
 radius of 30 mm) came out 28.8-29.1 mm with a square-ish cross-section (e2 0.83-0.86 for
-1), its box with rounded edges (exponents 0.27-0.58 for 0.1). So a cell's distance counts only beyond
-``CELL_SLACK`` of a cell (0.35): a centre nearer than that is on the surface, and the surface
-goes where the band of cells puts it (the cylinder 29.6-29.8 mm, e2 0.91-0.93). The search
-runs without the slack and the shape it finds is fitted again with it: with the slack in
-the search too some fits went astray (seed 7's standing bottle at half a cell: 1.9 -> 3.1 mm
-Chamfer; seed 10's standing diamond fitted alone at 0.35: 0.7 -> 2.2 mm). Points on the
-surface (the benchmark's dense reference) take no slack.
+1), its box with rounded edges (exponents 0.27-0.58 for 0.1). So a cell's distance counts
+only beyond ``CELL_SLACK`` of a cell (0.35): a centre nearer than that is on the surface,
+and the surface goes where the band of cells puts it (the cylinder 29.6-29.8 mm, e2
+0.91-0.93). The search runs without the slack and the shape it finds is fitted again with
+it: with the slack in the search too some fits went astray (seed 7's standing bottle at
+half a cell: 1.9 -> 3.1 mm Chamfer; seed 10's standing diamond fitted alone at 0.35: 0.7
+-> 2.2 mm). Points on the surface (the benchmark's dense reference) take no slack.
 
 :func:`fit_least_squares` is the classic baseline (Solina and Bajcsy 1990): least squares
 on ``sqrt(a1 a2 a3) (F^e1 - 1)`` from the same starts, every cell counted, no outliers.
