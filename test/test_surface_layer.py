@@ -58,6 +58,31 @@ def test_two_sheets_side_by_side_keep_both_a_thin_wall():
         assert layered_evidence(evidence, N, flat(8, 8, z), 0.4, 1.0) == 3.0
 
 
+def air(evidence, zs, touches=0.1):
+    """``evidence`` with the path's air (carries, lifts: under AIR_TOUCHES) over the sheet's
+    area at the heights ``zs``."""
+    evidence = evidence.copy()
+    for z in zs:
+        for ix in range(3, 13):
+            for iy in range(3, 13):
+                evidence[flat(ix, iy, z)] = touches
+    return evidence
+
+
+def test_a_thin_walls_weaker_side_is_kept_where_the_air_lies_on_both_sides_of_the_wall():
+    """Two stacked sheets, one weaker: with the air on both outer sides they are a thin
+    wall's two sides (the fingers reached each from its own side) and the weaker keeps its
+    evidence; with the air above both, the weaker is the layer above the surface."""
+    stacked = sheet(3.0, z=8) + sheet(2.0, z=9)
+    wall = air(stacked, (6, 7, 10, 11))
+    assert layered_evidence(wall, N, flat(8, 8, 9), 0.4, 1.0) == 2.0
+    assert layered_evidence(wall, N, flat(8, 8, 8), 0.4, 1.0) == 3.0
+    hover = air(stacked, (10, 11))
+    assert layered_evidence(hover, N, flat(8, 8, 9), 0.4, 1.0) == pytest.approx(0.4 * 2.0 * 2.0 / 3.0)
+    # no air at all: nothing says which side is open, the weaker is the layer as before
+    assert layered_evidence(stacked, N, flat(8, 8, 9), 0.4, 1.0) == pytest.approx(0.4 * 2.0 * 2.0 / 3.0)
+
+
 def test_a_lone_stroke_keeps_its_evidence():
     # A line of cells: the plane through it is any plane containing it; the cells beside
     # the line carry nothing, so no cell of the line is weaker than its neighbours.
