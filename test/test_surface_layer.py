@@ -83,6 +83,21 @@ def test_a_thin_walls_weaker_side_is_kept_where_the_air_lies_on_both_sides_of_th
     assert layered_evidence(stacked, N, flat(8, 8, 9), 0.4, 1.0) == pytest.approx(0.4 * 2.0 * 2.0 / 3.0)
 
 
+def test_of_two_stacked_sheets_as_strong_the_one_outside_the_other_is_the_layer():
+    """A hover as slow as the stroke under it earns as much evidence: with the air above
+    both sheets the upper one is outside the lower one's surface and keeps the factor of its
+    evidence; with the air on both outer sides (a wall touched from both sides) both keep all
+    of it; with no air nothing says which is outside."""
+    stacked = sheet(2.0, z=8) + sheet(2.0, z=9)
+    hover = air(stacked, (10, 11))
+    assert layered_evidence(hover, N, flat(8, 8, 9), 0.4, 1.0) == pytest.approx(0.8)
+    assert layered_evidence(hover, N, flat(8, 8, 8), 0.4, 1.0) == 2.0
+    wall = air(stacked, (6, 7, 10, 11))
+    for z in (8, 9):
+        assert layered_evidence(wall, N, flat(8, 8, z), 0.4, 1.0) == 2.0
+        assert layered_evidence(stacked, N, flat(8, 8, z), 0.4, 1.0) == 2.0
+
+
 def test_a_lone_stroke_keeps_its_evidence():
     # A line of cells: the plane through it is any plane containing it; the cells beside
     # the line carry nothing, so no cell of the line is weaker than its neighbours.

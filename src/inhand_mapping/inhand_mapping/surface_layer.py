@@ -44,9 +44,13 @@ The rule, per cell with evidence ``e`` (touches, touch_paths.py):
    surface the air of both cells lies on the same side; on a wall it lies on opposite
    sides. A weaker cell that is itself on a flat sheet (rule 3's test) and whose air, within
    ``AIR_RADIUS``, leans away from the stronger cell while the stronger cell's leans away
-   from it (both by more than ``AIR_COS``) is not scaled as the layer. On the docs' set A
-   the cups and mugs keep 24-143 more cells of their walls (F +0.002 to +0.008) with not one
-   stray cell more; set S is unchanged (docs/quality.md).
+   from it (both by more than ``AIR_COS``) is not scaled as the layer. The same air finds
+   the layer where it is *as strong* as the surface (``AS_STRONG`` of it or more: a hover as
+   slow as the stroke under it earns as much): a cell whose air leans away from that
+   neighbour while the neighbour's leans towards it lies outside the neighbour's surface
+   and keeps ``layer_factor`` of its evidence. On the docs' set A the two take the sessions
+   meeting their targets from 9 to 10 of 24 and the stray cells from 140 to 125, the cups
+   and mugs keeping more of their walls; set S is unchanged (docs/quality.md).
 3. *The sheet.* A cell that is no weaker than its neighbours along ``n``, lies in a flat
    sheet of evidence (the plane's smallest spread under ``SHEET_FLATNESS`` of the middle
    one, the middle over ``SHEET_BREADTH`` of the largest: a surface, not a line of one
@@ -126,6 +130,7 @@ BRIDGE_FLATNESS = 0.5  # and its plane's smallest spread under this share of its
 AIR_TOUCHES = 0.3    # a visited cell with less evidence than this is air the path crossed
 AIR_RADIUS = 2       # cells: the air around a cell that says which side of it is open
 AIR_COS = 0.3        # a side is open where the air's summed direction leans this far to it
+AS_STRONG = 0.95     # a neighbour with this share of a cell's evidence is as strong as it
 
 
 @_inlined
@@ -178,16 +183,17 @@ def _air_lean(evidence: CellFloats, n: int, ix: int, iy: int, iz: int,
 
 
 @_inlined
-def _other_side(evidence: CellFloats, n: int, ix: int, iy: int, iz: int,
-                nx: float, ny: float, nz: float) -> bool:
-    """Whether the cell (ix, iy, iz) and its stronger neighbour one step along (nx, ny, nz)
-    are the two sides of a thin wall rather than a surface and the layer above it: each one's
-    air lies on its own side, away from the other (above a surface both lie above)."""
+def _open_sides(evidence: CellFloats, n: int, ix: int, iy: int, iz: int,
+                nx: float, ny: float, nz: float) -> tuple[float, float]:
+    """How far the air leans away from each other (``_air_lean``) around the cell (ix, iy,
+    iz) and around its neighbour one step along (nx, ny, nz): (the cell's lean along -n, the
+    neighbour's along +n); (0, 0) when the neighbour is outside the grid or unvisited."""
     sx, sy, sz = int(round(ix + nx)), int(round(iy + ny)), int(round(iz + nz))
-    if sx < 0 or sy < 0 or sz < 0 or sx >= n or sy >= n or sz >= n:
-        return False
-    return (_air_lean(evidence, n, sx, sy, sz, nx, ny, nz) > AIR_COS
-            and _air_lean(evidence, n, ix, iy, iz, -nx, -ny, -nz) > AIR_COS)
+    if sx < 0 or sy < 0 or sz < 0 or sx >= n or sy >= n or sz >= n \
+            or not evidence[(sx * n + sy) * n + sz] > 0.0:
+        return 0.0, 0.0
+    return (_air_lean(evidence, n, ix, iy, iz, -nx, -ny, -nz),
+            _air_lean(evidence, n, sx, sy, sz, nx, ny, nz))
 
 
 @_compiled
@@ -249,15 +255,24 @@ def _layered(evidence: CellFloats, n: int, c: int, factor: float, gain: float,
     offset = abs(s1[0] * normal[0] + s1[1] * normal[1] + s1[2] * normal[2]) / s0
     on_sheet = e >= SHEET_MIN_TOUCHES and spread[0] < SHEET_FLATNESS * spread[1] \
         and spread[1] > SHEET_BREADTH * spread[2] and offset < SHEET_OFFSET
-    if e < stronger:
+    # the air around the cell and around its strongest neighbour along n, leaning away from
+    # each other: a thin wall's two faces; the cell's away and the neighbour's towards it:
+    # the cell is outside the neighbour's surface (both open on its side)
+    own = other = 0.0
+    if factor < 1.0 and ((e < stronger and on_sheet) or stronger >= AS_STRONG * e):
         side = 1.0 if up >= down else -1.0
-        if not (on_sheet and factor < 1.0 and _other_side(
-                evidence, n, ix, iy, iz, side * normal[0], side * normal[1], side * normal[2])):
-            # the layer keeps less the weaker it is: what the surface under a hover or the
-            # noise of a much-rubbed spot spills into the next cell is a small share of it
-            # (factor 1: the layer is off, share and all)
-            share = e / stronger if factor < 1.0 else 1.0
-            return float(e * factor * share), False
+        own, other = _open_sides(evidence, n, ix, iy, iz, side * normal[0], side * normal[1],
+                                 side * normal[2])
+    if stronger <= e and stronger >= AS_STRONG * e and own > AIR_COS and -other > AIR_COS:
+        # as strong as the surface beside it, and outside it: a hover as slow as the stroke
+        # under it
+        return float(e * factor), False
+    if e < stronger and not (on_sheet and own > AIR_COS and other > AIR_COS):
+        # the layer keeps less the weaker it is: what the surface under a hover or the
+        # noise of a much-rubbed spot spills into the next cell is a small share of it
+        # (factor 1: the layer is off, share and all)
+        share = e / stronger if factor < 1.0 else 1.0
+        return float(e * factor * share), False
     if e < NOISE_SHARE * level2 / level1:
         return float(e * factor), False
     if on_sheet:
