@@ -185,9 +185,10 @@ def _air_lean(evidence: CellFloats, n: int, ix: int, iy: int, iz: int,
 @_inlined
 def _open_sides(evidence: CellFloats, n: int, ix: int, iy: int, iz: int,
                 nx: float, ny: float, nz: float) -> tuple[float, float]:
-    """How far the air leans away from each other (``_air_lean``) around the cell (ix, iy,
-    iz) and around its neighbour one step along (nx, ny, nz): (the cell's lean along -n, the
-    neighbour's along +n); (0, 0) when the neighbour is outside the grid or unvisited."""
+    """The air's leans (``_air_lean``) around the cell (ix, iy, iz) and around its
+    neighbour one step along (nx, ny, nz): the cell's along -n (away from the neighbour) and
+    the neighbour's along +n (away from the cell); (0, 0) when the neighbour is outside the
+    grid or unvisited."""
     sx, sy, sz = int(round(ix + nx)), int(round(iy + ny)), int(round(iz + nz))
     if sx < 0 or sy < 0 or sz < 0 or sx >= n or sy >= n or sz >= n \
             or not evidence[(sx * n + sy) * n + sz] > 0.0:
