@@ -315,18 +315,15 @@ class _Parameters:
         return np.asarray((points - x[8:11]) @ (self.base @ _rotation_matrix(x[5:8])))
 
     def distances(self, x: Floats, points: Points) -> Floats:
-        return self._beyond_slack(radial_distance(self.local(x, points), np.exp(x[:3]), x[3], x[4]))
-
-    def _beyond_slack(self, distances: Floats) -> Floats:
-        """What of the radial distances the cells' own extent does not explain."""
-        return np.asarray(np.maximum(distances - self.slack, 0.0)) if self.slack > 0 else distances
+        return _beyond_slack(radial_distance(self.local(x, points), np.exp(x[:3]), x[3], x[4]),
+                             self.slack)
 
     def residuals(self, x: Floats, points: Points, scale: Floats, reach: _Reach | None = None
                   ) -> Floats:
         """The fit's residuals: ``scale`` * distances (N,), then, with ``reach``, how far
         the shape reaches past its cells (6,)."""
         local = self.local(x, points)
-        d = scale * self._beyond_slack(radial_distance(local, np.exp(x[:3]), x[3], x[4]))
+        d = scale * _beyond_slack(radial_distance(local, np.exp(x[:3]), x[3], x[4]), self.slack)
         if reach is None:
             return np.asarray(d)
         return np.concatenate([d, reach.weight * reach.past(local, np.exp(x[:3]))])
@@ -352,13 +349,18 @@ class _Parameters:
             local[k + 1] = offset @ (self.base @ _rotation_matrix(shifted[k + 1, 5:8]))
         # a moved centre: the points shift by the step along that axis, in the frame
         local[9:] = base[None, :, :] - step[8:, None, None] * rotation[None, :, :].transpose(1, 0, 2)
-        d = self._beyond_slack(radial_distance(local, np.exp(shifted[:, None, :3]), shifted[:, 3:4],
-                                               shifted[:, 4:5]))
+        d = _beyond_slack(radial_distance(local, np.exp(shifted[:, None, :3]), shifted[:, 3:4],
+                                          shifted[:, 4:5]), self.slack)
         jacobian = scale[:, None] * ((d[1:] - d[0]) / step[:, None]).T
         if reach is None:
             return np.asarray(jacobian)
         past = reach.weight * reach.past(local, np.exp(shifted[:, :3]))
         return np.vstack([jacobian, ((past[1:] - past[0]) / step[:, None]).T])
+
+
+def _beyond_slack(distances: Floats, slack: float) -> Floats:
+    """What of the radial distances the cells' own extent (``slack``, m) does not explain."""
+    return np.asarray(np.maximum(distances - slack, 0.0)) if slack > 0 else distances
 
 
 def _rotation_matrix(rotvec: Floats) -> Matrix3:
@@ -589,8 +591,7 @@ def _fit(cells: Points, w: Weights, fit_cells: Points, fit_weights: Weights, res
                     sigma, likelihood = state.sigma, state.likelihood
                 break
     span = np.prod(np.maximum(np.ptp(cells, axis=0), resolution))
-    posterior, _ = _mixture(np.maximum(sq.distance(cells) - slack, 0.0), sigma, outlier_ratio,
-                            1.0 / span)
+    posterior, _ = _mixture(_beyond_slack(sq.distance(cells), slack), sigma, outlier_ratio, 1.0 / span)
     return _result(sq, cells, w, sigma, posterior, resolution, likelihood)
 
 
