@@ -4,6 +4,7 @@ that ``bench_validation.py --folder DIR`` scores them exactly as it scores the h
 sessions: the sets the touch model's defaults were chosen on (docs/quality.md: "Other hands").
 
     .venv/bin/python test/benchmarks/hand_sessions.py --set A --output DIR [--jobs 2] [--first N]
+        [--seconds 120]
     .venv/bin/python test/benchmarks/bench_validation.py --folder DIR
 
 Set A: 24 sessions of 120 s over the shipped objects and shapes (cat, cup, animal, duck,
@@ -12,7 +13,9 @@ animal at 0.4, the cup at 0.6 of their size: 5-7 cm). Each session draws static 
 a stroke speed (2, 5, 10, 15 cm/s), a rate (15, 30, 30, 240 Hz) and one of two hands:
 ``a``, strokes of 3-12 cm, lifts of 1-4 cm at 0.1-0.3 m/s along the normal, 0.3 m/s carries;
 ``b``, the same with bell-shaped strokes, hovers at 2-6 mm, 0.5 mm of 10 Hz tremor and lifts
-up to 60 degrees oblique. Seeds: 300-323 (A), 500-515 (S). Each bag is written with
+up to 60 degrees oblique. Seeds: 300-323 (A), 500-515 (S). ``--seconds 60`` writes the same
+draws as 60 s sessions (the issue's other floor: F >= 0.85 or within 0.02 of the
+oracle), named ``..._T60_...``. Each bag is written with
 ``simulate_session``; its truth goes beside it as ``<name>_truth.npz`` (``surface``,
 ``contacts``, ``contact_t``, ``mode``, ``rate``, ``seconds``, ``speed_cms``) in the map's
 frame. A session already written is kept.
@@ -48,8 +51,9 @@ SETS = {
 }
 
 
-def sessions(name: str) -> list[tuple]:
-    """(session name, object, static, speed, rate, hand, seed) of set ``name``."""
+def sessions(name: str, seconds: int = 120) -> list[tuple]:
+    """(session name, object, static, speed, rate, hand, seed, seconds) of set ``name``,
+    each ``seconds`` long."""
     base, count, objects = SETS[name]
     rng = random.Random(base)
     out = []
@@ -63,14 +67,14 @@ def sessions(name: str) -> list[tuple]:
         # a mesh at a scale: 'duck45pc' (no dot: build_map names its map by the bag's stem)
         shown = obj if ':' not in obj else \
             f'{obj.split(":")[0]}{round(float(obj.split(":")[1]) * 100)}pc'
-        label = (f'{shown}_{"st" if static else "tr"}_v{speed}_r{rate}_T120_'
+        label = (f'{shown}_{"st" if static else "tr"}_v{speed}_r{rate}_T{seconds}_'
                  f's{seed}{"b" if hand is HAND_B else "a"}')
-        out.append((label, obj, static, speed, rate, hand, seed))
+        out.append((label, obj, static, speed, rate, hand, seed, seconds))
     return out
 
 
 def write(folder: Path, session: tuple) -> str:
-    label, obj, static, speed, rate, hand, seed = session
+    label, obj, static, speed, rate, hand, seed, seconds = session
     if (folder / f'{label}_truth.npz').exists():
         return label
     bag = folder / label
@@ -79,7 +83,7 @@ def write(folder: Path, session: tuple) -> str:
         mesh, scale = obj.split(':')
         source = ['--object', str(MESHES / f'{mesh}.ply'), '--mesh-scale', scale]
     command = [str(BIN / 'simulate_session'), *source, '--static' if static else '--moving',
-               '--rate', str(rate), '--speed', str(speed), '--duration', '120',
+               '--rate', str(rate), '--speed', str(speed), '--duration', str(seconds),
                '--seed', str(seed), '--output', str(bag), '--quiet', '--force']
     for item in hand:
         command += ['--hand', item]
@@ -88,7 +92,7 @@ def write(folder: Path, session: tuple) -> str:
     truth = in_frame(truth, default_frame(truth))
     np.savez(folder / f'{label}_truth.npz', surface=truth.surface_points,
              contacts=truth.contacts, contact_t=truth.contact_times,
-             mode='static' if static else 'tracked', rate=float(rate), seconds=120.0,
+             mode='static' if static else 'tracked', rate=float(rate), seconds=float(seconds),
              speed_cms=float(speed))
     return label
 
@@ -99,10 +103,14 @@ def main() -> int:
     parser.add_argument('--output', type=Path, required=True)
     parser.add_argument('--jobs', type=int, default=2)
     parser.add_argument('--first', type=int, help='only the first N sessions of the set')
+    parser.add_argument('--seconds', type=int, default=120,
+                        help='length of each session (s; default 120)')
     args = parser.parse_args()
+    if args.seconds < 10:
+        parser.error(f'--seconds must be at least 10, not {args.seconds}')
     args.output.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()
-    todo = sessions(args.set)[:args.first]
+    todo = sessions(args.set, args.seconds)[:args.first]
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         for done, label in enumerate(pool.map(lambda s: write(args.output, s), todo), 1):
             print(f'[{done}/{len(todo)}] {label}', flush=True)
