@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 
 import pytest
@@ -34,6 +35,7 @@ def fused_metrics(tmp_path_factory):
 def test_the_three_maps_are_scored_side_by_side(fused_metrics):
     text, fusion = fused_metrics
     assert 'local and global maps' in text and set(fusion) == {'touch', 'vision', 'global'}
+    assert 'recall lost' not in text     # the global map is not the touch map alone
     touch, vision, fused = fusion['touch'], fusion['vision'], fusion['global']
     # vision sees one side: precise, a third of the surface
     assert vision['precision_at_5mm'] > 0.95 and 0.15 < vision['recall_whole_at_5mm'] < 0.5
@@ -57,6 +59,14 @@ def test_a_map_without_fusion_has_no_side_by_side_table(tmp_path):
                             timeout=300)
     assert scored.returncode == 0, scored.stderr
     assert 'local and global maps' not in scored.stdout
+    # a touch map's lost recall, split by the touches of the contact cells nearby
+    lost = re.search(r'^recall lost at p > 0.8: ([\d.]+)% of the explored surface: ([\d.]+)% '
+                     r'with no .* ([\d.]+)% whose contact cells hold under one touch and '
+                     r'([\d.]+)% under 1.74 before the surface rules, ([\d.]+)% whose', scored.stdout,
+                     re.M)
+    assert lost, scored.stdout
+    missed, *parts = (float(v) for v in lost.groups())
+    assert 0 < missed < 20 and sum(parts) == pytest.approx(missed, abs=0.25)
 
 
 def test_render_map_draws_the_local_maps_of_a_fused_map(fused_metrics, tmp_path_factory):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from inhand_tools.map_cells import Lattice
-from inhand_tools.map_quality import SurfaceTruth, one_touch_oracle
+from inhand_tools.map_quality import SurfaceTruth, one_touch_oracle, recall_losses
 
 BENCH = 'test/benchmarks/bench_validation.py'
 QUALITY = 'test/benchmarks/bench_quality.py'
@@ -33,6 +33,43 @@ def test_the_one_touch_oracle_marks_the_cells_holding_contacts():
     recall = oracle['recall_at_5mm']
     assert 0.5 < recall <= 1.0
     assert oracle['fscore_at_5mm'] == pytest.approx(2 * recall / (1 + recall))
+
+
+def test_the_recall_a_map_lost_is_split_by_the_touches_of_the_cells_nearby():
+    # A flat strip 8 cm long in the layer of cells k = 0, touched for its first 6 cm; along
+    # x, bands of three cells each: occupied (3 touches, p 0.9), taken by the rules (3
+    # touches, p 0.5), under one touch (0.5), unconfirmed (1.2, p 0.7).
+    h = 0.005
+    lattice = Lattice(h)
+    x, y = np.meshgrid(np.arange(0.0005, 0.08, 0.002), np.arange(0.0005, 0.08, 0.002))
+    surface = np.stack([x.ravel(), y.ravel(), np.full(x.size, h / 2)], axis=1)
+    truth = SurfaceTruth(surface, surface[surface[:, 0] < 0.06], explored_radius=0.01)
+    cells = np.unique(np.floor(truth.contacts / h).astype(int), axis=0)
+    band = cells[:, 0] // 3
+    touches = np.array([3.0, 3.0, 0.5, 1.2])[band]
+    probabilities = np.array([0.9, 0.5, 0.6, 0.7])[band]
+    evidence = np.zeros((20, 20, 20))
+    evidence[tuple(cells.T)] = touches
+    centres = (cells + 0.5) * h
+    losses = recall_losses(centres, probabilities, lattice, truth, evidence, 1.74)
+    # the same by brute force, sample by sample
+    explored = truth.explored_points
+    occupied = centres[probabilities > 0.8]
+    expect = {'missed': 0, 'untouched': 0, 'under_one_touch': 0, 'unconfirmed': 0,
+              'taken_by_rules': 0}
+    for sample in explored:
+        if np.min(np.linalg.norm(occupied - sample, axis=1)) <= 0.005:
+            continue
+        expect['missed'] += 1
+        near = np.linalg.norm(centres - sample, axis=1) <= 0.005
+        best = touches[near].max() if near.any() else None
+        expect['untouched' if best is None else 'under_one_touch' if best < 1
+               else 'unconfirmed' if best < 1.74 else 'taken_by_rules'] += 1
+    assert losses == pytest.approx({k: v / len(explored) for k, v in expect.items()})
+    assert all(losses[k] > 0.02 for k in expect)     # every kind is there
+    assert losses['missed'] == pytest.approx(sum(losses[k] for k in expect if k != 'missed'))
+    with pytest.raises(ValueError, match='3-D grid'):
+        recall_losses(centres, probabilities, lattice, truth, evidence[0], 1.74)
 
 
 def test_the_validation_benchmark_scores_a_held_out_session_beside_its_oracle(workspace):

@@ -52,6 +52,12 @@ Definitions (metres inside, millimetres in the reported ``*_mm`` values)
   cell off).
   **Off-surface cells** = occupied cells not within tolerance of ``G`` (``|A|`` minus the
   correct ones), whatever put them there.
+* **Recall lost** (:func:`recall_losses`, a touch map saved with its evidence): the explored
+  samples farther than 5 mm from every occupied centre, each by the best cell holding a
+  true contact within 5 mm of it (the one-touch oracle's cells): none; under one touch
+  before the surface layer's rules; under the touches that reach the threshold alone; or
+  as many, and the rules took it. It says whether a session touched too little, too fast
+  or too thinly, or whether the rules cut what it touched.
 * Registered raw points (:func:`point_metrics`): the same distances with the points in place
   of cell centres: precision, recall and F-score at 5 mm, Chamfer, and the median and 95th
   percentile of point-to-surface distances.
@@ -101,8 +107,8 @@ from inhand_tools.map_cells import Lattice, MapCells, cell_indices, is_bag
 __all__ = ['COLOUR_SCORE_KEYS', 'MAP_SCORE_KEYS', 'METRIC_LABELS', 'SurfaceTruth',
            'colour_metrics', 'colour_problem', 'evaluate', 'explored_mask', 'find_truth',
            'format_metric', 'frame_check', 'label_width', 'map_metrics', 'metrics_table',
-           'one_touch_oracle', 'point_metrics', 'seen_cells', 'surface_truth', 'touch_coverage',
-           'true_cell_colours']
+           'one_touch_oracle', 'point_metrics', 'recall_losses', 'seen_cells', 'surface_truth',
+           'touch_coverage', 'true_cell_colours']
 
 # Cell indices are packed into one int64 per cell: 20 bits per axis, offset to be positive.
 _BITS = 20
@@ -385,6 +391,48 @@ def one_touch_oracle(truth: SurfaceTruth, lattice: Lattice, threshold: float = 0
     cells = np.unique(cell_indices(truth.contacts, lattice), axis=0)
     centres = np.asarray(lattice.origin) + (cells + 0.5) * lattice.resolution
     return map_metrics(centres, np.ones(len(centres)), lattice, truth, threshold)
+
+
+def recall_losses(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
+                  touch_evidence: np.ndarray, touches_needed: float, threshold: float = 0.8,
+                  fscore_distance: float = 0.005) -> dict:
+    """Where the explored surface a touch map misses was lost: shares of the explored
+    samples. ``missed``: farther than ``fscore_distance`` from every cell above
+    ``threshold`` (what recall counts). Each missed sample by the best of the cells holding
+    a true contact within that distance of it (the cells the one-touch oracle marks), by its
+    touches before the surface layer's rules (``touch_evidence``, the path model's (n, n, n)
+    evidence on ``lattice``'s cells, as saved in the NPZ): ``untouched``, no such cell (the
+    oracle misses it too); ``under_one_touch``, less than one pass at stroke speed (a fast
+    stretch, a corner clipped); ``unconfirmed``, at least one but under ``touches_needed``
+    (what reaches ``threshold`` on its own; the rules' sheet gain did not make it up);
+    ``taken_by_rules``, as many or more, and the rules took the cell under ``threshold``
+    (the layer above a surface, a thin wall's other side, a cell alone)."""
+    evidence = np.asarray(touch_evidence, dtype=float)
+    if evidence.ndim != 3:
+        raise ValueError(f'touch_evidence must be a 3-D grid, not {evidence.shape}')
+    explored = truth.explored_points
+    occupied = _occupied(centres, probabilities, lattice, threshold)
+    missed = explored[_nearest_distances(occupied.centres, explored) > fscore_distance]
+    keys = np.unique(cell_indices(truth.contacts, lattice), axis=0)
+    inside = np.all((keys >= 0) & (keys < np.array(evidence.shape)), axis=1)
+    touches = np.zeros(len(keys))
+    touches[inside] = evidence[tuple(keys[inside].T)]
+    best = np.full(len(missed), -math.inf)
+    if len(keys) and len(missed):
+        contact_cells = np.asarray(lattice.origin) + (keys + 0.5) * lattice.resolution
+        # the cell centres within the distance of a point lie in a ball one cell wider
+        k = min(len(keys), math.ceil(4 / 3 * math.pi
+                                     * (fscore_distance / lattice.resolution + 1) ** 3))
+        _, index = cKDTree(contact_cells).query(missed, k=k,
+                                                distance_upper_bound=fscore_distance)
+        best = np.append(touches, -math.inf)[np.asarray(index).reshape(len(missed), k)].max(axis=1)
+    total = max(len(explored), 1)
+    touched = np.isfinite(best)
+    return {'missed': len(missed) / total,
+            'untouched': int(np.count_nonzero(~touched)) / total,
+            'under_one_touch': int(np.count_nonzero(touched & (best < 1.0))) / total,
+            'unconfirmed': int(np.count_nonzero((best >= 1.0) & (best < touches_needed))) / total,
+            'taken_by_rules': int(np.count_nonzero(best >= touches_needed)) / total}
 
 
 def point_metrics(points, truth: SurfaceTruth, fscore_distance: float = 0.005) -> dict:

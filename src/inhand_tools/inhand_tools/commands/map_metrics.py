@@ -65,6 +65,7 @@ from inhand_tools.map_quality import (
     label_width,
     metrics_table,
     one_touch_oracle,
+    recall_losses,
     surface_truth,
     touch_coverage,
 )
@@ -184,7 +185,29 @@ def _evaluate(args: argparse.Namespace, inputs: _Inputs) -> dict:
     results['touch_coverage'] = touch_coverage(surface, inputs.truth.contact_times,
                                                inputs.cells.lattice)
     results['oracle'] = one_touch_oracle(surface, inputs.cells.lattice)
+    results['recall_losses'] = (_recall_losses(args.map, inputs.cells, surface,
+                                               max(args.threshold))
+                                if results['fusion'] is None else None)
     return results
+
+
+def _recall_losses(path: Path, cells: MapCells, surface: SurfaceTruth,
+                   threshold: float) -> dict | None:
+    """recall_losses() of a touch map's NPZ, with the touches that reach ``threshold`` on
+    their own from the map's model; None for a map without the path model's evidence."""
+    if cells.kind != 'npz' or len(surface.contacts) == 0:
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        if 'touch_evidence' not in data.files:
+            return None
+        evidence = data['touch_evidence']
+    c = float(cells.metadata['p_z_given_not_occupied'])
+    prior = float(cells.metadata['prior'])
+    needed = (math.log(threshold / (1 - threshold)) - math.log(prior / (1 - prior))) \
+        / -math.log(c)
+    losses = recall_losses(cells.centres, cells.probabilities, cells.lattice, surface,
+                           evidence, needed, threshold)
+    return {**losses, 'threshold': threshold, 'touches_needed': needed}
 
 
 def _print_summary(args: argparse.Namespace, inputs: _Inputs, results: dict) -> None:
@@ -207,6 +230,15 @@ def _print_summary(args: argparse.Namespace, inputs: _Inputs, results: dict) -> 
     oracle = results['oracle']
     print(f'one-touch oracle (exactly the cells holding a true contact): F@5mm '
           f'{oracle["fscore_at_5mm"]:.3f}, recall {oracle["recall_at_5mm"]:.3f}')
+    losses = results['recall_losses']
+    if losses is not None:
+        print(f'recall lost at p > {losses["threshold"]:g}: {losses["missed"]:.1%} of the '
+              f'explored surface: {losses["untouched"]:.1%} with no true contact\'s cell within '
+              f'5 mm (the oracle misses it too), {losses["under_one_touch"]:.1%} whose contact '
+              f'cells hold under one touch and {losses["unconfirmed"]:.1%} under '
+              f'{losses["touches_needed"]:.2f} before the surface rules, '
+              f'{losses["taken_by_rules"]:.1%} whose contact cells the rules took under '
+              f'{losses["threshold"]:g}')
     if points is not None:
         stats = points.stats
         print(f'bag:   {args.bag}: {len(points.registered)} of {len(points.raw)} fingertip '
@@ -250,7 +282,8 @@ def _write_json(args: argparse.Namespace, inputs: _Inputs, results: dict) -> Non
                 'colour': results['colour'], 'colour_note': results['colour_note'],
                 'seen_note': results['seen_note'], 'stereo': results['stereo'],
                 'stereo_note': results['stereo_note'], 'fusion': results['fusion'],
-                'touch_coverage': results['touch_coverage'], 'oracle': results['oracle']}
+                'touch_coverage': results['touch_coverage'], 'oracle': results['oracle'],
+                'recall_losses': results['recall_losses']}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(_jsonable(document), indent=2) + '\n')
 
