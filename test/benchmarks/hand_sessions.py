@@ -14,8 +14,8 @@ a stroke speed (2, 5, 10, 15 cm/s), a rate (15, 30, 30, 240 Hz) and one of two h
 ``a``, strokes of 3-12 cm, lifts of 1-4 cm at 0.1-0.3 m/s along the normal, 0.3 m/s carries;
 ``b``, the same with bell-shaped strokes, hovers at 2-6 mm, 0.5 mm of 10 Hz tremor and lifts
 up to 60 degrees oblique. Seeds: 300-323 (A), 500-515 (S). ``--seconds 60`` writes the same
-draws as 60 s sessions (the issue's other floor: F >= 0.85 or within 0.02 of the
-oracle), named ``..._T60_...``. Each bag is written with
+draws as 60 s sessions, named ``..._T60_...``, which ``bench_validation.py`` holds to the
+60 s floor (F >= 0.85, or within 0.02 of the oracle). Each bag is written with
 ``simulate_session``; its truth goes beside it as ``<name>_truth.npz`` (``surface``,
 ``contacts``, ``contact_t``, ``mode``, ``rate``, ``seconds``, ``speed_cms``) in the map's
 frame. A session already written is kept.
