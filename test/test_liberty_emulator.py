@@ -72,11 +72,15 @@ def test_a_replugged_device_counts_what_it_streams_before_the_host_is_back():
         with serial.Serial(port, timeout=0.1) as host:
             host.write(b'P')          # the host is back
             wait_until(lambda: emulator.device.commands_seen[-1:] == [b'P'], 5, 'the command')
+            # the device streamed on until the host's byte arrived: a frame or two more on a
+            # busy machine (the count stopped when the emulator read it, before the command)
+            returned = emulator.stats.frames_before_host
             sent = emulator.stats.frames_sent
             host.write(b'C\r')
             wait_until(lambda: emulator.stats.frames_sent >= sent + 24, 5, 'streaming again')
-        assert emulator.stats.frames_before_host == unread
-        assert f'before the host came back {unread}' in emulator.status()
+        assert unread <= returned <= unread + (time.monotonic() - back) * rate
+        assert emulator.stats.frames_before_host == returned    # none once the host is back
+        assert f'before the host came back {returned}' in emulator.status()
 
 
 def test_hemisphere_picks_the_solution_on_its_side():
