@@ -65,6 +65,7 @@ def test_the_recall_a_map_lost_is_split_by_the_touches_of_the_cells_nearby():
         best = touches[near].max() if near.any() else None
         expect['untouched' if best is None else 'under_one_touch' if best < 1
                else 'unconfirmed' if best < 1.74 else 'taken_by_rules'] += 1
+    assert losses.pop('explored_samples') == len(explored)
     assert losses == pytest.approx({k: v / len(explored) for k, v in expect.items()})
     assert all(losses[k] > 0.02 for k in expect)     # every kind is there
     assert losses['missed'] == pytest.approx(sum(losses[k] for k in expect if k != 'missed'))
@@ -153,11 +154,20 @@ def test_a_set_of_our_own_hands_is_written_in_the_validation_format_and_scored(w
                 'speed_cms'} <= set(truth.files)
         assert len(truth['contacts']) > 250 and str(truth['mode']) in ('static', 'tracked')
         assert float(truth['seconds']) == 30.0
-    scored = subprocess.run([sys.executable, BENCH, '--folder', str(tmp_path), '--jobs', '1'],
+    scored = subprocess.run([sys.executable, BENCH, '--folder', str(tmp_path), '--jobs', '1',
+                             '--losses'],
                             cwd=workspace, capture_output=True, text=True, timeout=300)
     assert scored.returncode == 0, scored.stdout + scored.stderr
     rows = ROW.findall(scored.stdout)
     assert [row[0] for row in rows] == [name], scored.stdout
+    # where the recall went: the session's four parts add up to what it lost
+    lost = re.search(r'^    recall lost ([\d.]+)%: untouched ([\d.]+)%, under one touch ([\d.]+)%, '
+                     r'unconfirmed ([\d.]+)%, taken by rules ([\d.]+)%$', scored.stdout, re.M)
+    assert lost, scored.stdout
+    missed, *parts = (float(v) for v in lost.groups())
+    assert 0 < missed < 100 and sum(parts) == pytest.approx(missed, abs=0.25)
+    assert re.search(r'^recall lost over the set: ([\d.]+)% of the explored surface; of it: '
+                     r'untouched \d+%', scored.stdout, re.M), scored.stdout
     precision, oracle, floor = float(rows[0][2]), float(rows[0][6]), float(rows[0][7])
     assert 0.5 < precision <= 1.0 and 0.5 < oracle <= 1.0
     assert floor == pytest.approx(min(0.85, oracle - 0.02), abs=0.0011)

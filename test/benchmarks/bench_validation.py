@@ -4,7 +4,7 @@
 project's metrics beside each session's one-touch oracle.
 
     .venv/bin/python test/benchmarks/bench_validation.py [--folder DIR] [--sessions NAME,...]
-        [--set NAME=VALUE ...] [--jobs 2] [--keep DIR]
+        [--set NAME=VALUE ...] [--jobs 2] [--keep DIR] [--losses]
 
 They are a check, not a training set: nothing in the project is tuned on them. Each session:
 ``build_map`` with the shipped ``config/mapping.yaml`` (tracked) or ``mapping_static.yaml``
@@ -13,6 +13,9 @@ it: precision, the share of occupied cell centres within 5 mm of the true surfac
 the share of the explored surface (surface samples within 1 cm of a true contact) within
 5 mm of an occupied centre; F, their harmonic mean; stray cells, occupied centres more than
 5 mm off the surface. The oracle marks exactly the cells holding a true contact.
+``--losses`` adds, under each session, where its lost recall went (``map_metrics``' line:
+``map_quality.touch_recall_losses``), and for the whole set the same split of every missed
+surface sample.
 
 Targets (issue: held-out touch map): precision >= 0.97; F >= 0.9 at 30 and 240 Hz and at
 15 Hz up to 10 cm/s (0.85 at 15 Hz and 15 cm/s), or, where the session touched too little of
@@ -38,7 +41,12 @@ import numpy as np
 
 from inhand_common.ground_truth import CONTACT_TRUTH_EXPLORED, load_truth
 from inhand_tools.map_cells import load_map
-from inhand_tools.map_quality import map_metrics, one_touch_oracle, surface_truth
+from inhand_tools.map_quality import (
+    map_metrics,
+    one_touch_oracle,
+    surface_truth,
+    touch_recall_losses,
+)
 
 WORKSPACE = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
@@ -79,7 +87,8 @@ def score(bag: Path, output: Path, overrides: list[str]) -> dict:
     return {'F': scores['fscore_at_5mm'], 'P': scores['precision_at_5mm'],
             'R': scores['recall_at_5mm'], 'occupied': len(occupied), 'strays': strays,
             'oracle_F': oracle['fscore_at_5mm'], 'oracle_R': oracle['recall_at_5mm'],
-            'floor': floor, 'mode': mode}
+            'floor': floor, 'mode': mode,
+            'losses': touch_recall_losses(output / f'{bag.name}.npz', cells, surface)}
 
 
 def main() -> int:
@@ -90,6 +99,8 @@ def main() -> int:
                         help='build_map override (repeatable), to compare models')
     parser.add_argument('--jobs', type=int, default=2)
     parser.add_argument('--keep', type=Path, help='keep the maps in this folder')
+    parser.add_argument('--losses', action='store_true',
+                        help='where each session\'s lost recall went, and the set\'s')
     args = parser.parse_args()
     if not args.folder.is_dir():
         print(f'bench_validation: no validation sessions at {args.folder} (they come with the '
@@ -114,6 +125,8 @@ def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
           f'{"floor":>6s}  targets')
     started = time.monotonic()
     met = 0
+    kinds = ('untouched', 'under_one_touch', 'unconfirmed', 'taken_by_rules')
+    lost = dict.fromkeys(('explored_samples', 'missed', *kinds), 0.0)   # samples, summed
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         futures = {bag: pool.submit(score, bag, output, args.set) for bag in bags}
         for bag in bags:
@@ -124,8 +137,19 @@ def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
             print(f'{bag.name:32s} {r["F"]:6.3f} {r["P"]:6.3f} {r["R"]:6.3f} '
                   f'{r["strays"]:4d} {share:5.1%} {r["oracle_F"]:8.3f} {r["floor"]:6.3f}  '
                   f'{"met" if ok else "NOT met"}', flush=True)
+            losses = r['losses']
+            if args.losses and losses is not None:
+                print(f'    recall lost {losses["missed"]:.1%}: '
+                      + ', '.join(f'{k.replace("_", " ")} {losses[k]:.1%}' for k in kinds))
+                for key in lost:
+                    lost[key] += losses[key] * (1 if key == 'explored_samples'
+                                                else losses['explored_samples'])
     print(f'\nsummary: targets met on {met} of {len(bags)} (precision >= 0.97, F >= floor, stray '
           f'cells <= 1%); {time.monotonic() - started:.0f} s')
+    if args.losses and lost['missed'] > 0:
+        print(f'recall lost over the set: {lost["missed"] / lost["explored_samples"]:.1%} of the '
+              'explored surface; of it: '
+              + ', '.join(f'{k.replace("_", " ")} {lost[k] / lost["missed"]:.0%}' for k in kinds))
     return 0
 
 

@@ -108,7 +108,7 @@ __all__ = ['COLOUR_SCORE_KEYS', 'MAP_SCORE_KEYS', 'METRIC_LABELS', 'SurfaceTruth
            'colour_metrics', 'colour_problem', 'evaluate', 'explored_mask', 'find_truth',
            'format_metric', 'frame_check', 'label_width', 'map_metrics', 'metrics_table',
            'one_touch_oracle', 'point_metrics', 'recall_losses', 'seen_cells', 'surface_truth',
-           'touch_coverage', 'true_cell_colours']
+           'touch_coverage', 'touch_recall_losses', 'true_cell_colours']
 
 # Cell indices are packed into one int64 per cell: 20 bits per axis, offset to be positive.
 _BITS = 20
@@ -397,7 +397,7 @@ def recall_losses(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
                   touch_evidence: np.ndarray, touches_needed: float, threshold: float = 0.8,
                   fscore_distance: float = 0.005) -> dict:
     """Where the explored surface a touch map misses was lost: shares of the explored
-    samples. ``missed``: farther than ``fscore_distance`` from every cell above
+    samples (``explored_samples`` of them). ``missed``: farther than ``fscore_distance`` from every cell above
     ``threshold`` (what recall counts). Each missed sample by the best of the cells holding
     a true contact within that distance of it (the cells the one-touch oracle marks), by its
     touches before the surface layer's rules (``touch_evidence``, the path model's (n, n, n)
@@ -428,11 +428,33 @@ def recall_losses(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
         best = np.append(touches, -math.inf)[np.asarray(index).reshape(len(missed), k)].max(axis=1)
     total = max(len(explored), 1)
     touched = np.isfinite(best)
-    return {'missed': len(missed) / total,
+    return {'explored_samples': len(explored), 'missed': len(missed) / total,
             'untouched': int(np.count_nonzero(~touched)) / total,
             'under_one_touch': int(np.count_nonzero(touched & (best < 1.0))) / total,
             'unconfirmed': int(np.count_nonzero((best >= 1.0) & (best < touches_needed))) / total,
             'taken_by_rules': int(np.count_nonzero(best >= touches_needed)) / total}
+
+
+def touch_recall_losses(path, cells: MapCells, surface: SurfaceTruth,
+                        threshold: float = 0.8) -> dict | None:
+    """:func:`recall_losses` of the touch map saved at ``path`` (an NPZ, its ``cells`` as
+    :func:`~inhand_tools.map_cells.load_map` read them), with the touches that reach
+    ``threshold`` on their own from the map's model (its ``p_z_given_not_occupied`` and
+    prior), and those two numbers; None for a map without the path model's evidence or a
+    truth without contacts."""
+    if cells.kind != 'npz' or len(surface.contacts) == 0:
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        if 'touch_evidence' not in data.files:
+            return None
+        evidence = data['touch_evidence']
+    c = float(cells.metadata['p_z_given_not_occupied'])
+    prior = float(cells.metadata['prior'])
+    needed = (math.log(threshold / (1 - threshold)) - math.log(prior / (1 - prior))) \
+        / -math.log(c)
+    losses = recall_losses(cells.centres, cells.probabilities, cells.lattice, surface,
+                           evidence, needed, threshold)
+    return {**losses, 'threshold': threshold, 'touches_needed': needed}
 
 
 def point_metrics(points, truth: SurfaceTruth, fscore_distance: float = 0.005) -> dict:

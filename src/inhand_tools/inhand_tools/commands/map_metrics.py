@@ -65,9 +65,9 @@ from inhand_tools.map_quality import (
     label_width,
     metrics_table,
     one_touch_oracle,
-    recall_losses,
     surface_truth,
     touch_coverage,
+    touch_recall_losses,
 )
 from inhand_tools.stereo_quality import (
     principal_point,
@@ -185,29 +185,10 @@ def _evaluate(args: argparse.Namespace, inputs: _Inputs) -> dict:
     results['touch_coverage'] = touch_coverage(surface, inputs.truth.contact_times,
                                                inputs.cells.lattice)
     results['oracle'] = one_touch_oracle(surface, inputs.cells.lattice)
-    results['recall_losses'] = (_recall_losses(args.map, inputs.cells, surface,
-                                               max(args.threshold))
+    results['recall_losses'] = (touch_recall_losses(args.map, inputs.cells, surface,
+                                                    max(args.threshold))
                                 if results['fusion'] is None else None)
     return results
-
-
-def _recall_losses(path: Path, cells: MapCells, surface: SurfaceTruth,
-                   threshold: float) -> dict | None:
-    """recall_losses() of a touch map's NPZ, with the touches that reach ``threshold`` on
-    their own from the map's model; None for a map without the path model's evidence."""
-    if cells.kind != 'npz' or len(surface.contacts) == 0:
-        return None
-    with np.load(path, allow_pickle=False) as data:
-        if 'touch_evidence' not in data.files:
-            return None
-        evidence = data['touch_evidence']
-    c = float(cells.metadata['p_z_given_not_occupied'])
-    prior = float(cells.metadata['prior'])
-    needed = (math.log(threshold / (1 - threshold)) - math.log(prior / (1 - prior))) \
-        / -math.log(c)
-    losses = recall_losses(cells.centres, cells.probabilities, cells.lattice, surface,
-                           evidence, needed, threshold)
-    return {**losses, 'threshold': threshold, 'touches_needed': needed}
 
 
 def _print_summary(args: argparse.Namespace, inputs: _Inputs, results: dict) -> None:
