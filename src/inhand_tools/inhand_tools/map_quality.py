@@ -383,13 +383,18 @@ def map_metrics(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
     return {key: scores[key] for key in MAP_SCORE_KEYS}
 
 
+def _contact_cells(truth: SurfaceTruth, lattice: Lattice) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct cells holding a true contact: their indices (K, 3) and centres (K, 3)."""
+    cells = np.unique(cell_indices(truth.contacts, lattice), axis=0)
+    return cells, np.asarray(lattice.origin) + (cells + 0.5) * lattice.resolution
+
+
 def one_touch_oracle(truth: SurfaceTruth, lattice: Lattice, threshold: float = 0.8) -> dict:
     """The map that marks exactly the cells holding a true contact, scored by
     :func:`map_metrics` as a map is: what a session's contacts allow at best when one touch
     is enough (precision about 1, so its F is about 2r / (1 + r), r its recall). A session
     that touched too little of its surface is judged against it."""
-    cells = np.unique(cell_indices(truth.contacts, lattice), axis=0)
-    centres = np.asarray(lattice.origin) + (cells + 0.5) * lattice.resolution
+    _, centres = _contact_cells(truth, lattice)
     return map_metrics(centres, np.ones(len(centres)), lattice, truth, threshold)
 
 
@@ -397,29 +402,29 @@ def recall_losses(centres, probabilities, lattice: Lattice, truth: SurfaceTruth,
                   touch_evidence: np.ndarray, touches_needed: float, threshold: float = 0.8,
                   fscore_distance: float = 0.005) -> dict:
     """Where the explored surface a touch map misses was lost: shares of the explored
-    samples (``explored_samples`` of them). ``missed``: farther than ``fscore_distance`` from every cell above
-    ``threshold`` (what recall counts). Each missed sample by the best of the cells holding
-    a true contact within that distance of it (the cells the one-touch oracle marks), by its
-    touches before the surface layer's rules (``touch_evidence``, the path model's (n, n, n)
-    evidence on ``lattice``'s cells, as saved in the NPZ): ``untouched``, no such cell (the
-    oracle misses it too); ``under_one_touch``, less than one pass at stroke speed (a fast
-    stretch, a corner clipped); ``unconfirmed``, at least one but under ``touches_needed``
-    (what reaches ``threshold`` on its own; the rules' sheet gain did not make it up);
-    ``taken_by_rules``, as many or more, and the rules took the cell under ``threshold``
-    (the layer above a surface, a thin wall's other side, a cell alone)."""
+    samples (``explored_samples`` of them). ``missed``: farther than ``fscore_distance``
+    from every cell above ``threshold`` (what recall counts). Each missed sample by the best
+    of the cells holding a true contact within that distance of it (the cells the one-touch
+    oracle marks), by its touches before the surface layer's rules (``touch_evidence``, the
+    path model's (n, n, n) evidence on ``lattice``'s cells, as saved in the NPZ):
+    ``untouched``, no such cell (the oracle misses it too); ``under_one_touch``, less than
+    one pass at stroke speed (a fast stretch, a corner clipped); ``unconfirmed``, at least
+    one but under ``touches_needed`` (what reaches ``threshold`` on its own; the rules'
+    sheet gain did not make it up); ``taken_by_rules``, as many or more, and the rules took
+    the cell under ``threshold`` (the layer above a surface, a thin wall's other side, a
+    cell alone)."""
     evidence = np.asarray(touch_evidence, dtype=float)
     if evidence.ndim != 3:
         raise ValueError(f'touch_evidence must be a 3-D grid, not {evidence.shape}')
     explored = truth.explored_points
     occupied = _occupied(centres, probabilities, lattice, threshold)
     missed = explored[_nearest_distances(occupied.centres, explored) > fscore_distance]
-    keys = np.unique(cell_indices(truth.contacts, lattice), axis=0)
+    keys, contact_cells = _contact_cells(truth, lattice)
     inside = np.all((keys >= 0) & (keys < np.array(evidence.shape)), axis=1)
     touches = np.zeros(len(keys))
     touches[inside] = evidence[tuple(keys[inside].T)]
     best = np.full(len(missed), -math.inf)
     if len(keys) and len(missed):
-        contact_cells = np.asarray(lattice.origin) + (keys + 0.5) * lattice.resolution
         # the cell centres within the distance of a point lie in a ball one cell wider
         k = min(len(keys), math.ceil(4 / 3 * math.pi
                                      * (fscore_distance / lattice.resolution + 1) ** 3))
@@ -448,10 +453,10 @@ def touch_recall_losses(path, cells: MapCells, surface: SurfaceTruth,
         if 'touch_evidence' not in data.files:
             return None
         evidence = data['touch_evidence']
+    # imported here, as map_cells imports the map reader: only when a map needs it
+    from inhand_mapping.occupancy import logit
     c = float(cells.metadata['p_z_given_not_occupied'])
-    prior = float(cells.metadata['prior'])
-    needed = (math.log(threshold / (1 - threshold)) - math.log(prior / (1 - prior))) \
-        / -math.log(c)
+    needed = float(logit(threshold) - logit(float(cells.metadata['prior']))) / -math.log(c)
     losses = recall_losses(cells.centres, cells.probabilities, cells.lattice, surface,
                            evidence, needed, threshold)
     return {**losses, 'threshold': threshold, 'touches_needed': needed}
