@@ -259,12 +259,15 @@ def _layered(evidence: CellFloats, n: int, c: int, factor: float, gain: float,
     # the air around the cell and around its strongest neighbour along n, leaning away from
     # each other: a thin wall's two faces; the cell's away and the neighbour's towards it:
     # the cell is outside the neighbour's surface (both open on its side)
+    # (looked at only where one of the two rules can use it: a weaker cell of a sheet, or a
+    # neighbour as strong as the cell but no stronger)
+    as_strong = AS_STRONG * e <= stronger <= e
     own = other = 0.0
-    if factor < 1.0 and ((e < stronger and on_sheet) or stronger >= AS_STRONG * e):
+    if factor < 1.0 and ((e < stronger and on_sheet) or as_strong):
         side = 1.0 if up >= down else -1.0
         own, other = _open_sides(evidence, n, ix, iy, iz, side * normal[0], side * normal[1],
                                  side * normal[2])
-    if stronger <= e and stronger >= AS_STRONG * e and own > AIR_COS and -other > AIR_COS:
+    if as_strong and own > AIR_COS and -other > AIR_COS:
         # as strong as the surface beside it, and outside it: a hover as slow as the stroke
         # under it
         return float(e * factor), False
