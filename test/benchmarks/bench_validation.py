@@ -62,7 +62,7 @@ def f_target(rate: float, speed: float, seconds: float) -> float:
     return 0.9
 
 
-def score(bag: Path, output: Path, overrides: list[str]) -> dict:
+def score(bag: Path, output: Path, overrides: list[str], losses: bool = False) -> dict:
     # the folder's own format (a set of ours has the simulator's sidecar beside it too, in
     # the object frame: not this one)
     truth = load_truth(bag.parent / f'{bag.name}_truth.npz')
@@ -88,7 +88,8 @@ def score(bag: Path, output: Path, overrides: list[str]) -> dict:
             'R': scores['recall_at_5mm'], 'occupied': len(occupied), 'strays': strays,
             'oracle_F': oracle['fscore_at_5mm'], 'oracle_R': oracle['recall_at_5mm'],
             'floor': floor, 'mode': mode,
-            'losses': touch_recall_losses(output / f'{bag.name}.npz', cells, surface)}
+            'losses': touch_recall_losses(output / f'{bag.name}.npz', cells, surface)
+            if losses else None}
 
 
 def main() -> int:
@@ -128,7 +129,7 @@ def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
     kinds = ('untouched', 'under_one_touch', 'unconfirmed', 'taken_by_rules')
     lost = dict.fromkeys(('explored_samples', 'missed', *kinds), 0.0)   # samples, summed
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = {bag: pool.submit(score, bag, output, args.set) for bag in bags}
+        futures = {bag: pool.submit(score, bag, output, args.set, args.losses) for bag in bags}
         for bag in bags:
             r = futures[bag].result()
             share = r['strays'] / max(r['occupied'], 1)
@@ -138,7 +139,7 @@ def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
                   f'{r["strays"]:4d} {share:5.1%} {r["oracle_F"]:8.3f} {r["floor"]:6.3f}  '
                   f'{"met" if ok else "NOT met"}', flush=True)
             losses = r['losses']
-            if args.losses and losses is not None:
+            if losses is not None:
                 print(f'    recall lost {losses["missed"]:.1%}: '
                       + ', '.join(f'{k.replace("_", " ")} {losses[k]:.1%}' for k in kinds))
                 for key in lost:
