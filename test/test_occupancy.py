@@ -492,6 +492,65 @@ def test_hits_per_cell():
     assert grid.hits.dtype == np.uint32
 
 
+@pytest.mark.parametrize('touch_model', ['samples', 'path'])
+def test_each_cell_keeps_where_its_hits_were_and_their_mean_places_its_surface(touch_model):
+    """The sum of the positions counted in each cell's hits (timed and untimed points,
+    outside and invalid ones left out) is kept exactly; ``contact_centroids`` is their mean
+    per listed cell, the centre of a cell occupied without a hit of its own. The shape node
+    sums the registered points it receives with ``position_sums``: the same sums."""
+    from inhand_common.cell_lattice import Lattice
+    from inhand_common.contact_centroids import position_sums
+    model = SensorModel(neighbourhood=27) if touch_model == 'samples' else _SensorModel()
+    grid = OccupancyGrid(SMALL, model)
+    points = []
+    for k, batch in enumerate(random_batches(5, SMALL)):
+        grid.integrate(batch, np.full(len(batch), float(k)), np.arange(len(batch)) % 3)
+        points.append(batch)
+    untimed = random_batches(6, SMALL, count=60, n_batches=1)[0]
+    grid.integrate(untimed)
+    grid.flush()
+    points = np.concatenate(points + [untimed])
+    inside = np.isfinite(points).all(axis=1) & SMALL.contains(np.nan_to_num(points, nan=1e9))
+    keys = SMALL.cell_indices(points[inside])
+    expected = np.zeros((*SMALL.shape, 3))
+    np.add.at(expected, tuple(keys.T), points[inside])
+    assert np.allclose(grid.contact_sum, expected, rtol=0, atol=1e-15)
+    assert grid.hits.sum() == inside.sum()
+    centres, _, hits, _ = grid.cells()
+    means = grid.contact_centroids()
+    counted = hits > 0
+    assert counted.any() and (~counted).any()       # 27-neighbourhood / spread: both kinds
+    ijk = SMALL.cell_indices(centres)
+    assert np.allclose(means[counted], expected[tuple(ijk[counted].T)] / hits[counted, None])
+    assert np.array_equal(means[~counted], centres[~counted])
+    assert np.all(np.abs(means - centres) <= RES / 2 + 1e-12)    # inside their cells
+    sums, counts = position_sums(points, centres, Lattice(RES, tuple(SMALL.origin)))
+    assert np.array_equal(counts, hits) and np.allclose(sums, expected[tuple(ijk.T)], atol=1e-12)
+    settled = grid.settled_copy()
+    assert np.array_equal(settled.contact_sum, grid.contact_sum)
+    grid.reset()
+    assert not grid.contact_sum.any()
+
+
+def test_the_shape_nodes_store_keeps_the_newest_positions_and_far_ones_fall_in_no_cell():
+    from inhand_common.cell_lattice import Lattice
+    from inhand_common.contact_centroids import RecentPositions, centroids, position_sums
+    store = RecentPositions(5)
+    for k in range(4):
+        store.add(np.full((2, 3), float(k)))
+    assert len(store) == 5 and store.dropped == 3
+    assert np.array_equal(store.points()[:, 0], [1.0, 2.0, 2.0, 3.0, 3.0])
+    lattice = Lattice(0.01)
+    centres = np.array([[0.005, 0.005, 0.005], [0.015, 0.005, 0.005]])
+    far = np.array([[0.002, 0.004, 0.006], [1e12, 0.0, 0.0], [np.nan, 0.0, 0.0], [0.013, 0.001, 0.009]])
+    sums, counts = position_sums(far, centres, lattice)
+    assert counts.tolist() == [1, 1]
+    assert np.allclose(centroids(centres, sums, counts), far[[0, 3]])
+    assert np.array_equal(centroids(centres, sums, [0, 0]), centres)
+    with pytest.raises(ValueError, match='2 cells, 2 sums and 1 counts'):
+        centroids(centres, sums, [1])
+
+
 def test_first_touch_is_the_earliest_time_and_never_moves_later():
     grid = OccupancyGrid()
     a, b = centre_of(5, 6, 7), centre_of(8, 9, 10)
@@ -578,9 +637,11 @@ def streamed_grid(points, times, fingers, cuts, model=None):
     return grid
 
 
-def same_grid(a, b):
+def same_grid(a, b, contact_sum=True):
+    """``contact_sum=False``: a file of a writer before the contact sums (they load as 0)."""
     return (np.array_equal(a.log_odds, b.log_odds) and np.array_equal(a.hits, b.hits)
             and np.array_equal(a.first_touch, b.first_touch, equal_nan=True)
+            and (not contact_sum or np.array_equal(a.contact_sum, b.contact_sum))
             and a.counts == b.counts)
 
 
@@ -935,9 +996,10 @@ def test_npz_round_trip_and_the_loaded_map_keeps_integrating_identically(tmp_pat
     loaded, metadata = map_io.load_npz(path)
     assert loaded.spec == grid.spec and loaded.model == grid.model
     assert loaded.counts == grid.counts and grid.counts.invalid == 1
-    for name in ('log_odds', 'hits', 'first_touch'):
+    for name in ('log_odds', 'hits', 'first_touch', 'contact_sum'):
         a, b = getattr(grid, name), getattr(loaded, name)
         assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), name
+    assert grid.contact_sum.any()
     assert metadata['frame_id'] == 'object' and metadata['extra'] == {'bag': 'run3.mcap'}
     assert metadata['format_version'] == map_io.FORMAT_VERSION
     # A loaded map starts new visits: later data (past the visit gap) lands identically.
@@ -1262,20 +1324,22 @@ def test_maps_without_colour_match_the_writer_before_colours_and_its_files_still
     old.save_npz(grid, tmp_path / 'old.npz', extra={'a': 1})
     map_io.save_npz(grid, tmp_path / 'new.npz', extra={'a': 1})
     with np.load(tmp_path / 'old.npz') as a, np.load(tmp_path / 'new.npz') as b:
-        assert a.files == b.files
+        assert a.files == [name for name in b.files if name != 'contact_sum']   # added since
         for name in a.files:
             assert a[name].dtype == b[name].dtype
             assert np.array_equal(a[name], b[name], equal_nan=True), name
     # a file of the old writer loads, without colours
     loaded, metadata = map_io.load_npz(tmp_path / 'old.npz')
-    assert same_grid(loaded, grid) and metadata['extra'] == {'a': 1}
+    assert same_grid(loaded, grid, contact_sum=False) and metadata['extra'] == {'a': 1}
+    # its hits count at their cells' centres
+    assert np.allclose(loaded.contact_centroids(), loaded.cells()[0], rtol=0, atol=1e-12)
     assert map_io.load_colours(tmp_path / 'old.npz') is None
     # and a coloured map still loads in the old reader (it ignores the colour arrays)
     colours, textured = painted(len(p))
     map_io.save_npz(grid, tmp_path / 'coloured.npz',
                     colours=map_io.GridColours.from_cells(grid.spec, centres, colours, textured))
     again, _ = old.load_npz(tmp_path / 'coloured.npz')
-    assert same_grid(again, grid)
+    assert same_grid(again, grid, contact_sum=False)
 
 
 def test_npz_round_trip_of_the_colours(tmp_path):
@@ -1287,8 +1351,8 @@ def test_npz_round_trip_of_the_colours(tmp_path):
     assert cell_colours.textured.sum() == textured.sum()
     path = map_io.save_npz(grid, tmp_path / 'map.npz', colours=cell_colours)
     with np.load(path) as data:
-        assert sorted(data.files) == ['first_touch', 'hits', 'log_odds', 'metadata', 'rgb',
-                                      'textured']
+        assert sorted(data.files) == ['contact_sum', 'first_touch', 'hits', 'log_odds', 'metadata',
+                                      'rgb', 'textured']
     loaded = map_io.load_colours(path)
     assert loaded is not None
     assert np.array_equal(loaded.rgb, cell_colours.rgb)

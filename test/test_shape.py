@@ -139,7 +139,8 @@ def test_a_touch_maps_cells_are_fitted_as_cells_with_their_slack(tmp_path):
     around it. Counted by their squared distance the farthest decide: a cylinder explored
     for a minute came out a millimetre thin and square in cross-section (e2 0.84). With the
     cells' slack it is round and its size (module doc of superquadric.py, "cells, not
-    points")."""
+    points"). Where in each cell the touches were (the map's contact centroids, inside
+    their cells and nearer the surface than the centres) places it better still."""
     from inhand_sim.commands.simulate_session import main as simulate
     from inhand_tools.commands.build_map import main as build_map
     from inhand_tools.map_cells import load_map
@@ -154,11 +155,51 @@ def test_a_touch_maps_cells_are_fitted_as_cells_with_their_slack(tmp_path):
     points, weights = cells.centres[occupied], cells.probabilities[occupied]
     fits = {slack: fit_superquadric(points, weights, resolution=RESOLUTION, slack=slack).superquadric
             for slack in (0.0, None)}
+    # where in each cell the touches were (the map's contact centroids): better still
+    fits['measured'] = fit_superquadric(points, weights, resolution=RESOLUTION,
+                                        surface_points=cells.surface_points[occupied]).superquadric
     radius = {slack: float(np.sort(fit.size)[:2].mean()) for slack, fit in fits.items()}
     roundness = {slack: max(fit.shape) for slack, fit in fits.items()}   # e2 of the round section
     true_radius = float(np.sort(truth.size)[:2].mean())
-    assert abs(radius[None] - true_radius) < 0.0006 < abs(radius[0.0] - true_radius), radius
+    error = {slack: abs(r - true_radius) for slack, r in radius.items()}
+    assert max(error['measured'], error[None]) < 0.0006 < error[0.0], radius
     assert abs(roundness[None] - 1.0) < abs(roundness[0.0] - 1.0), roundness
+    centroids = cells.surface_points[occupied]
+    assert np.all(np.abs(centroids - points) <= RESOLUTION / 2 + 1e-9)
+    off = {name: float(np.median(truth.surface_distance(at)))
+           for name, at in (('centres', points), ('centroids', centroids))}
+    print(error, off)
+    assert off['centroids'] < 0.5 * off['centres'], off
+
+
+@pytest.mark.parametrize('seed, size, shape', [(0, (6, 4, 3), (1.0, 1.0)), (1, (5, 5, 8), (0.1, 1.0)),
+                                               (2, (4, 4, 4), (1.5, 1.5))])
+def test_where_the_touches_fell_in_each_cell_places_the_fit_better_than_the_cells(seed, size, shape):
+    """A cell's centre is up to half a cell off the surface; the mean of the noisy surface
+    samples in it lies on the surface to their noise. Searched on the cells and fitted last
+    to those means (``surface_points``: the map's contact centroids), one superquadric and a
+    decomposition both come within 0.3 mm of the true sizes, nearer than the cells with
+    their slack. (A diamond and its turned twin look alike to any fit: docs/shape.md.)"""
+    rng = np.random.default_rng(seed)
+    sq = _sq(size, shape)
+    samples = sq.surface_samples(20_000, rng) + rng.normal(0, 0.001, (20_000, 3))
+    keys, owner, counts = np.unique(np.floor(samples / RESOLUTION).astype(int), axis=0,
+                                    return_inverse=True, return_counts=True)
+    cells = (keys + 0.5) * RESOLUTION
+    means = np.zeros_like(cells)
+    np.add.at(means, owner.reshape(-1), samples)
+    means /= counts[:, None]
+
+    def size_error(fit: Superquadric) -> float:
+        return float(np.abs(np.sort(fit.size) - np.sort(sq.size)).max())
+    alone = size_error(fit_superquadric(cells, resolution=RESOLUTION).superquadric)
+    measured = size_error(fit_superquadric(cells, resolution=RESOLUTION, surface_points=means).superquadric)
+    parts = decompose(cells, resolution=RESOLUTION, surface_points=means).parts
+    assert len(parts) == 1
+    assert max(measured, size_error(parts[0].superquadric)) < 0.0003 < alone + 0.0001, (measured, alone)
+    assert measured < alone - 0.00005
+    with pytest.raises(ValueError, match='surface points'):
+        decompose(cells, resolution=RESOLUTION, surface_points=means[:-1])
 
 
 def test_the_surface_mesh_is_closed_where_the_cells_are_and_open_where_they_are_not():
@@ -367,6 +408,55 @@ def test_shape_and_exploration_nodes_publish_what_the_page_and_a_late_viewer_sho
     cells = load_map(bottle_map)
     lowest = cells.centres[cells.probabilities >= 0.8, 2].max()
     assert best.pose.position.z < lowest - 0.01 + 1e-6
+
+
+def test_the_shape_node_places_the_cells_by_the_registered_positions_as_the_map_file_does(bottle_map):
+    """shape_node sums the registered positions it receives per occupied cell, as the map
+    file's contact sums do for extract_shape: given the latched map of the bundled bottle and
+    one registered position per occupied cell (each cell's contact centroid), it says every
+    cell was placed, and finds the parts extract_shape finds from the file."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    from inhand_common.point_cloud import to_point_cloud2
+    from inhand_mapping.cloud_layouts import map_cells, pack_registered
+    from inhand_mapping.map_io import load_npz
+    from inhand_mapping.qos import DATA_QOS
+    from inhand_shape.shape_extraction import extract_shape
+    from ros_helpers import BackgroundNode, call_trigger, running
+    grid, _ = load_npz(bottle_map)
+    cloud = map_cells(grid, 0.8)
+    centres, probabilities, hits, first = grid.cells(threshold=0.8)
+    centroids = grid.contact_centroids(threshold=0.8)
+    assert np.count_nonzero(np.linalg.norm(centroids - centres, axis=1) > 0.0005) > 0.5 * len(centres)
+    # a hair towards the centre: the float32 positions stay in their cells
+    positions = centres + 0.98 * (centroids - centres)
+    expected = extract_shape(centres, probabilities, hits, first, resolution=grid.spec.resolution,
+                             origin=grid.spec.origin, threshold=0.8, surface_points=positions)
+    publisher = BackgroundNode('test_shape_positions')
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    occupied = publisher.node.create_publisher(PointCloud2, 'occupancy/occupied', latched)
+    points = publisher.node.create_publisher(PointCloud2, 'registration/points', DATA_QOS)
+    publisher.start()
+    try:
+        stamp = publisher.node.get_clock().now().to_msg()
+        occupied.publish(to_point_cloud2(cloud, 'object', stamp))
+        with running(['shape_node']) as node:
+            node.wait_for_matches(['registration/points'])
+            points.publish(to_point_cloud2(pack_registered(positions, np.zeros(len(positions)),
+                                                           np.zeros(len(positions), np.uint8)),
+                                          'object', stamp))
+            deadline = time.monotonic() + 30
+            while f'{len(centres)} of {len(centres)} cells placed' not in \
+                    (answer := call_trigger('/shape/extract')).message:
+                assert time.monotonic() < deadline, (answer.message, node.output())
+                time.sleep(0.2)
+    finally:
+        publisher.close()
+    assert answer.success, answer.message
+    assert f'{len(expected.decomposition.parts)} part(s)' in answer.message, \
+        (answer.message, expected.summary())
 
 
 def test_the_exploration_node_completes_the_surface_with_what_the_stereo_node_saw():

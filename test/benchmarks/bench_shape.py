@@ -4,7 +4,7 @@
 Run from the workspace root with the workspace's environment::
 
     .venv/bin/python test/benchmarks/bench_shape.py [--shapes NAME ...] [--modes static tracked]
-                                                    [--keep DIR] [--duration S] [--stereo]
+                                                    [--keep DIR] [--duration S] [--stereo] [--centres-only]
 
 Each object of ``inhand_shape.known_shapes`` (single superquadrics from box-like to
 diamond-like at 3-15 cm, and two- and three-part objects) is meshed, explored by
@@ -20,7 +20,9 @@ config/stereo.yaml`` (touch + one stereo pair). Per session it prints:
   error (target 5 mm);
 * Chamfer-L1 (mm) of the parts' surfaces against the true surface, for ours (EMS-like, with
   the outlier model), for the classic least-squares fit on the same cells (single objects),
-  and for ours on dense points of the true surface (the best the fit can do);
+  and for ours on dense points of the true surface (the best the fit can do). The fits
+  search on the occupied cells and end on where in each cell the touches were (the map's
+  contact centroids; the classic fit takes those); ``--centres-only``: cell centres alone;
 * times of the mesh, the parts, and one superquadric; the mesh's holes;
 * on objects with a handle (the hand starts on it and comes back to it most:
   ``--hand focus_centre=...``; ``--no-focus``: explored like any other), whether the
@@ -128,7 +130,9 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
 
 
 def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
-            focus_on_handle: bool = True, stereo: bool = False) -> dict:
+            focus_on_handle: bool = True, stereo: bool = False, measured: bool = True) -> dict:
+    """One session's row; ``measured``: the fits take where in each cell the touches were
+    (the map's contact centroids; False: the cell centres alone, as before them)."""
     from inhand_shape.known_shapes import KNOWN_SHAPES
     from inhand_shape.shape_extraction import extract_shape
     from inhand_shape.shape_parts import decompose
@@ -136,7 +140,8 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     rng = np.random.default_rng(0)
     cells, truth_parts, surface = session(name, static, folder, duration, seed, focus_on_handle, stereo)
     result = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
-                           resolution=cells.lattice.resolution, origin=cells.lattice.origin)
+                           resolution=cells.lattice.resolution, origin=cells.lattice.origin,
+                           surface_points=cells.surface_points if measured else None)
     found = [p.superquadric for p in result.decomposition.parts]
     truth_sample = surface[rng.choice(len(surface), min(len(surface), 6000), replace=False)]
     row = {'name': name, 'seed': seed, 'mode': 'static' if static else 'tracked', 'parts': len(found),
@@ -162,10 +167,14 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     if len(truth_parts) == 1:
         occupied = cells.probabilities >= 0.8
         points, weights = cells.centres[occupied], cells.probabilities[occupied]
+        surface = cells.surface_points[occupied] if measured else None
         start = time.perf_counter()
-        ours = fit_superquadric(points, weights, resolution=cells.lattice.resolution)
+        ours = fit_superquadric(points, weights, resolution=cells.lattice.resolution,
+                                surface_points=surface)
         row['one_s'] = time.perf_counter() - start
-        classic = fit_least_squares(points, weights, resolution=cells.lattice.resolution)
+        # the classic fit on the same information: where the touches were, when ours has it
+        classic = fit_least_squares(points if surface is None else surface, weights,
+                                    resolution=cells.lattice.resolution)
         row['chamfer_one'] = _chamfer([ours.superquadric], truth_sample, rng)
         row['chamfer_classic'] = _chamfer([classic.superquadric], truth_sample, rng)
     return row
@@ -235,6 +244,9 @@ def main() -> int:
     parser.add_argument('--stereo', action='store_true',
                         help='touch + one stereo pair: each session also has a pair before the '
                         'exploration, fused into the map with config/stereo.yaml')
+    parser.add_argument('--centres-only', action='store_true',
+                        help='fit the cell centres alone, not where in each cell the touches '
+                        'were (the map\'s contact centroids): the fit before them')
     parser.add_argument('--seeds', type=int, nargs='+', default=[7, 8],
                         help='session seeds (7: the sessions the defaults were chosen on; '
                         'others to report)')
@@ -251,7 +263,7 @@ def main() -> int:
             for name in args.shapes:
                 for mode in args.modes:
                     row = measure(name, mode == 'static', folder, args.duration, seed,
-                                  not args.no_focus, args.stereo)
+                                  not args.no_focus, args.stereo, not args.centres_only)
                     _print_row(row)
                     rows.append(row)
     for seed in args.seeds:

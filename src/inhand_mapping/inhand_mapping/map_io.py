@@ -6,6 +6,9 @@
   visits are not saved: after loading, every finger starts a new visit). A path-model map
   also keeps ``touch_evidence``, its evidence before the surface layer (surface_layer.py),
   so that touches after loading go on from it exactly (an optional addition of format 2).
+  ``contact_sum`` (n, n, n, 3) is the sum of the positions counted in each cell's hits
+  (``OccupancyGrid.contact_centroids``: where in the cell the surface was touched; also
+  optional: a map without it loads with its hits at their cells' centres).
   Version 1 files (before dwell and visits) load with the model they were built with.
 * PLY (binary little-endian) holds one vertex per cell with ``x y z`` (cell centre, float),
   ``intensity`` (occupancy probability) and the ``hits`` and ``first_touch`` scalar fields:
@@ -173,7 +176,8 @@ def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
     encoded = np.frombuffer(json.dumps(metadata).encode(), dtype=np.uint8)
     target = Path(path)
     arrays: dict[str, NDArray[Any]] = {'log_odds': grid.log_odds, 'hits': grid.hits,
-                                       'first_touch': grid.first_touch, 'metadata': encoded}
+                                       'first_touch': grid.first_touch,
+                                       'contact_sum': grid.contact_sum, 'metadata': encoded}
     if colours is not None:
         arrays.update(rgb=colours.rgb, textured=colours.textured)
     for name, local in (local_maps or {}).items():
@@ -197,8 +201,9 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
         with data:
             metadata: dict[str, Any] = json.loads(bytes(data['metadata']).decode())
             arrays = {k: data[k] for k in ('log_odds', 'hits', 'first_touch')}
-            if 'touch_evidence' in data.files:
-                arrays['touch_evidence'] = data['touch_evidence']
+            for optional in ('touch_evidence', 'contact_sum'):   # absent from earlier maps
+                if optional in data.files:
+                    arrays[optional] = data[optional]
     except _UNREADABLE as error:
         raise ValueError(f'{path}: not a map saved by this software '
                          f'({type(error).__name__}: {error})') from None
@@ -237,15 +242,18 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
         raise ValueError(f'centre {centre} is not 3 coordinates')
     spec = GridSpec(float(metadata['size']), float(metadata['resolution']),
                     (centre[0], centre[1], centre[2]))
-    kinds = {'log_odds': 'f', 'hits': 'ui', 'first_touch': 'f', 'touch_evidence': 'f'}
+    kinds = {'log_odds': 'f', 'hits': 'ui', 'first_touch': 'f', 'touch_evidence': 'f',
+             'contact_sum': 'f'}
     for name, array in arrays.items():
-        if array.shape != spec.shape or array.dtype.kind not in kinds[name]:
+        shape = (*spec.shape, 3) if name == 'contact_sum' else spec.shape
+        if array.shape != shape or array.dtype.kind not in kinds[name]:
             raise ValueError(f'{name} is {array.dtype} {array.shape}, the metadata says a '
                              f'{spec.shape} grid')
     if np.isnan(arrays['log_odds']).any():
         raise ValueError('log_odds holds NaN')
-    if 'touch_evidence' in arrays and not np.isfinite(arrays['touch_evidence']).all():
-        raise ValueError('touch_evidence holds NaN or infinity')
+    for name in ('touch_evidence', 'contact_sum'):
+        if name in arrays and not np.isfinite(arrays[name]).all():
+            raise ValueError(f'{name} holds NaN or infinity')
     if arrays['hits'].size and (arrays['hits'].min() < 0 or
                                 arrays['hits'].max() > np.iinfo(np.uint32).max):
         raise ValueError('hits outside 0..2^32-1')
@@ -260,6 +268,11 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
     grid.log_odds[...] = arrays['log_odds']
     grid.hits[...] = arrays['hits']
     grid.first_touch[...] = arrays['first_touch']
+    if 'contact_sum' in arrays:
+        grid.contact_sum[...] = arrays['contact_sum']
+    else:       # a map from before the sums: its hits count at their cells' centres
+        hit = np.argwhere(grid.hits > 0)
+        grid.contact_sum[tuple(hit.T)] = spec.cell_centres(hit) * grid.hits[tuple(hit.T)][:, None]
     grid.refresh()
     if 'touch_evidence' in arrays:
         grid.restore_touch_evidence(arrays['touch_evidence'])

@@ -152,8 +152,10 @@ OCCUPANCY_PARAMETERS = (
 # Bytes per cell the occupancy node holds at its peak (the grid's arrays, the path model's
 # evidence, the map clouds' buffers, the live updates' copy, and during a save the settled
 # copy of the map with its clouds), measured with tracemalloc on 100^3 cells: 158 without
-# fusion, 241 with a vision map fused by product, 246 by entropy.
-BYTES_PER_CELL = {'none': 160, 'fusion': 250}
+# fusion, 241 with a vision map fused by product, 246 by entropy; then 24 more for each
+# grid that keeps contact sums (OccupancyGrid.contact_sum): the map and its settled copy,
+# and with fusion the touch map too.
+BYTES_PER_CELL = {'none': 210, 'fusion': 325}
 
 
 def memory_problem(cells_per_axis: int, fusion: str, available: int | None) -> str | None:

@@ -61,6 +61,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from inhand_common.array_types import Bools, CellFloats, CellHits, FingerIds, Floats, Points, Times
+from inhand_common.contact_centroids import centroids
 from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.dwell import DwellWeights, WeightedSamples
 from inhand_mapping.touch_paths import TouchPaths
@@ -227,6 +228,9 @@ class OccupancyGrid:
         self._log_odds: CellFloats = np.full(spec.shape, self.prior_log_odds, dtype=np.float64)
         self.hits: CellHits = np.zeros(spec.shape, dtype=np.uint32)
         self.first_touch: CellFloats = np.full(spec.shape, np.nan, dtype=np.float64)
+        # Where in each cell its hits were: the sum of their positions (map frame, m), so
+        # that the surface is known to better than a cell (contact_centroids).
+        self.contact_sum: Floats = np.zeros((*spec.shape, 3), dtype=np.float64)
         self._probability: CellFloats = np.full(spec.shape, float(model.prior), dtype=np.float64)
         self.earliest_touch = math.inf  # min of first_touch, kept up to date
         self.counts = IntegrationCounts()
@@ -249,7 +253,7 @@ class OccupancyGrid:
         self.cell_arrays = kernels.CellArrays(
             log_odds=self._log_odds.reshape(-1), probability=self._probability.reshape(-1),
             hits=self.hits.reshape(-1), first_touch=self.first_touch.reshape(-1),
-            changed_mark=np.zeros(size, dtype=np.bool_))
+            contact_sum=self.contact_sum.reshape(-1), changed_mark=np.zeros(size, dtype=np.bool_))
         # Per finger (rows) and cell: see kernels.Visits. Rows are added as fingers appear.
         self._visit_last: Floats = np.empty((0, size))
         self._visit_weight: Floats = np.empty((0, size))
@@ -347,7 +351,7 @@ class OccupancyGrid:
         samples after it start new ones, so a map saved every 10 s of a 22 s session
         differed from the unsaved one in 132 cells (7 of them occupied or not)."""
         settled = OccupancyGrid(self.spec, self.model)
-        for name in ('log_odds', 'hits', 'first_touch', '_probability'):
+        for name in ('log_odds', 'hits', 'first_touch', 'contact_sum', '_probability'):
             getattr(settled, name)[...] = getattr(self, name)
         settled.earliest_touch, settled.counts = self.earliest_touch, self.counts
         if self._paths is not None:
@@ -444,6 +448,7 @@ class OccupancyGrid:
         self.earliest_touch = math.inf
         self.hits.fill(0)
         self.first_touch.fill(np.nan)
+        self.contact_sum.fill(0.0)
         self.counts = IntegrationCounts()
         self._visit_last.fill(-np.inf)
         self._visit_weight.fill(0.0)
@@ -469,6 +474,7 @@ class OccupancyGrid:
         self.log_odds[...] = log_odds
         self.hits[...] = source.hits
         self.first_touch[...] = source.first_touch
+        self.contact_sum[...] = source.contact_sum
         self.counts = source.counts
         self.refresh()
 
@@ -489,13 +495,25 @@ class OccupancyGrid:
               ) -> tuple[Points, Floats, CellHits, Times]:
         """(centres (M, 3), probabilities (M,), hits (M,), first touch (M,)) of the cells in
         ``mask`` (default: touched) and, if given, with probability above ``threshold``."""
+        mask = self._selected(mask, threshold)
+        return (self.spec.cell_centres(np.argwhere(mask)), self.probabilities()[mask],
+                self.hits[mask], self.first_touch[mask])
+
+    def contact_centroids(self, mask: Bools | None = None, threshold: float | None = None
+                          ) -> Points:
+        """(M, 3): where in each cell of ``cells(mask, threshold)`` (same order) its hits
+        were, their mean position; the cell's centre where it has none
+        (inhand_common.contact_centroids)."""
+        mask = self._selected(mask, threshold)
+        return centroids(self.spec.cell_centres(np.argwhere(mask)), self.contact_sum[mask],
+                         self.hits[mask])
+
+    def _selected(self, mask: Bools | None, threshold: float | None) -> Bools:
         if mask is None:
             mask = self.touched_mask()
-        p = self.probabilities()
         if threshold is not None:
-            mask = mask & (p > threshold)
-        ijk = np.argwhere(mask)
-        return (self.spec.cell_centres(ijk), p[mask], self.hits[mask], self.first_touch[mask])
+            mask = mask & (self.probabilities() > threshold)
+        return mask
 
 
 def warm_up(model: SensorModel, resolution: float) -> None:

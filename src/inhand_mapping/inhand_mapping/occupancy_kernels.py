@@ -92,6 +92,7 @@ class CellArrays(NamedTuple):
     probability: CellFloats  # logistic of log_odds, refreshed by integrate where it changed
     hits: CellHits           # measurements whose containing cell it is
     first_touch: CellFloats  # time of the first of them (s); NaN: none yet
+    contact_sum: Floats      # (3 n^3,) the sum of their positions (m, map frame): x y z per cell
     changed_mark: Bools      # integrate's scratch flags: all False on entry and on return
 
 
@@ -120,6 +121,14 @@ class CloudBuffers(NamedTuple):
     touched_u32: NDArray[np.uint32]
     occupied: NDArray[np.float32]
     occupied_u32: NDArray[np.uint32]
+
+
+@_inlined
+def _add_position(contact_sum: Floats, c: int, px: float, py: float, pz: float) -> None:
+    """Count a measurement's position in its cell ``c`` (CellArrays.contact_sum)."""
+    contact_sum[3 * c] += px
+    contact_sum[3 * c + 1] += py
+    contact_sum[3 * c + 2] += pz
 
 
 @_compiled
@@ -158,6 +167,7 @@ def integrate(samples: SampleBatch, geometry: GridGeometry, model: UpdateModel,
         ix, iy, iz = int(x), int(y), int(z)
         c = (ix * n + iy) * n + iz
         hits[c] += 1
+        _add_position(cells.contact_sum, c, px, py, pz)
         if has_times:
             if not (first_touch[c] <= t):   # NaN: untouched
                 first_touch[c] = t

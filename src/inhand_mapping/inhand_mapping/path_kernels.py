@@ -36,6 +36,7 @@ from inhand_common.array_types import CellFloats, FingerIds, Floats, Indices, Po
 from inhand_mapping.occupancy_kernels import (
     CellArrays,
     GridGeometry,
+    _add_position,
     _inlined,
     _refresh_probability,
     _uncounted,
@@ -175,6 +176,7 @@ def push_samples(points: Points, times: Times, fingers: FingerIds, geometry: Gri
         else:
             c = (int(x) * n + int(y)) * n + int(z)
             cells.hits[c] += 1
+            _add_position(cells.contact_sum, c, px, py, pz)
             if not (cells.first_touch[c] <= t):
                 cells.first_touch[c] = t
             earliest = min(earliest, t)
@@ -236,6 +238,7 @@ def add_points(points: Points, geometry: GridGeometry, model: PathModel, cells: 
             continue
         c = (int(x) * n + int(y)) * n + int(z)
         cells.hits[c] += 1
+        _add_position(cells.contact_sum, c, px, py, pz)
         integrated += 1
         n_changed = _add_evidence(c, 1.0, model, cells, evidence, changed, n_changed, n)
         _mark_dirty(c, counts)

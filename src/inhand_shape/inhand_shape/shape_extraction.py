@@ -88,9 +88,12 @@ class ShapeResult:
 def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
                   first_touch: ArrayLike, *, resolution: float, origin: ArrayLike = (0, 0, 0),
                   threshold: float = 0.8, friction: float = DEFAULT_FRICTION,
-                  max_parts: int = MAX_PARTS, frame_id: str = 'object') -> ShapeResult:
+                  max_parts: int = MAX_PARTS, frame_id: str = 'object',
+                  surface_points: ArrayLike | None = None) -> ShapeResult:
     """The shape of the map whose cells are given (centres (N, 3) m, probabilities, hits,
-    first-touch times; any cells, those at or above ``threshold`` are used)."""
+    first-touch times; any cells, those at or above ``threshold`` are used).
+    ``surface_points`` (N, 3) m: where in each cell the surface was measured (the map's
+    contact centroids); the parts' last fit takes them (shape_parts.decompose)."""
     if not 0 < threshold < 1:
         raise ValueError(f'threshold {threshold}: must be in (0, 1)')
     if not friction >= 0:
@@ -103,7 +106,10 @@ def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
     mesh = surface_mesh(cells, resolution, origin)
     seconds['mesh'] = time.perf_counter() - start
     start = time.perf_counter()
-    parts = decompose(cells, p[keep], resolution=resolution, max_parts=max_parts)
+    measured = None if surface_points is None else \
+        np.asarray(surface_points, dtype=float).reshape(-1, 3)[keep]
+    parts = decompose(cells, p[keep], resolution=resolution, max_parts=max_parts,
+                      surface_points=measured)
     seconds['parts'] = time.perf_counter() - start
     scores = graspable_scores(parts.parts, np.asarray(hits)[keep], np.asarray(first_touch)[keep])
     graspable = int(np.argmax(scores)) if len(parts.parts) else None

@@ -15,8 +15,10 @@ is held to its cells (the fit's ``reach``: a shape may not reach far past its la
 so a strip of a shaft touched on one side is a cylinder, not the face of a deep slab the
 support check then refuses); a growing seed is free to reach past them, since that is where
 the rest of its part is. Last, each part is fitted once more to its nearest cells with their
-slack (``CELL_SLACK``, superquadric.py: "cells, not points"); the search and the part
-checks run without it, so it changes the parts' shapes, not which parts there are.
+slack (``CELL_SLACK``, superquadric.py: "cells, not points"), or, given where in each cell
+the touches were (``surface_points``, the map's contact centroids), to those, as points on
+the surface; the search and the part checks run on the cells without either, so this
+changes the parts' shapes, not which parts there are.
 
 A part is reported only when it explains its cells: :data:`EXPLAINED_SHARE` of them within
 one cell width of its surface, :data:`SUPPORTED_SHARE` of its surface within
@@ -194,12 +196,20 @@ def _next_part(points: Points, weights: Weights, pool: NDArray[np.intp], resolut
 
 
 def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution: float = 0.005,
-              max_parts: int = MAX_PARTS, slack: float | None = None) -> Decomposition:
+              max_parts: int = MAX_PARTS, slack: float | None = None,
+              surface_points: ArrayLike | None = None) -> Decomposition:
     """The parts of the cells at ``points`` (N, 3) m weighted by ``weights`` (occupancy
     probabilities), as the module doc describes; ``max_parts`` = 1 fits one superquadric;
     ``slack`` as for :func:`fit_superquadric` (0 for points on the surface), used by the
-    final fit of each part."""
+    final fit of each part. ``surface_points`` (N, 3) m: where in each cell the surface was
+    measured (the map's contact centroids, the cell's centre where it has none); the final
+    fit of each part then takes them, as points on the surface (no slack)."""
     cells = np.asarray(points, dtype=float).reshape(-1, 3)
+    measured = None
+    if surface_points is not None:
+        measured = np.asarray(surface_points, dtype=float).reshape(-1, 3)
+        if measured.shape != cells.shape:
+            raise ValueError(f'{len(measured)} surface points for {len(cells)} cells')
     w = np.ones(len(cells)) if weights is None else np.asarray(weights, dtype=float)
     everything = np.arange(len(cells))
     if len(cells) == 0:
@@ -230,7 +240,10 @@ def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution
         pool = np.concatenate([g for g in _groups(cells, pool, resolution) if len(g) >= smallest]
                               or [np.zeros(0, dtype=np.intp)])
     parts = _merged(cells, w, _refit(cells, w, parts, resolution, smallest), resolution)
-    parts = _polished(cells, w, parts, resolution, CELL_SLACK if slack is None else slack)
+    if measured is not None:
+        parts = _polished(cells, w, parts, resolution, 0.0, measured)
+    else:
+        parts = _polished(cells, w, parts, resolution, CELL_SLACK if slack is None else slack)
     if not parts:
         return Decomposition([], everything, f'no superquadric explains the {len(cells)} occupied '
                              f'cells (at least {EXPLAINED_SHARE:.0%} on it): they look like '
@@ -267,11 +280,12 @@ def _owners(points: Points, parts: list[Part]) -> NDArray[np.intp]:
 
 
 def _polished(points: Points, weights: Weights, parts: list[Part], resolution: float,
-              slack: float) -> list[Part]:
+              slack: float, measured: Points | None = None) -> list[Part]:
     """Each part fitted once more to the cells nearest to it, from where it is, with the
-    cells' ``slack`` (:func:`fit_superquadric`); the part as it was where that fit does not
+    cells' ``slack`` (:func:`fit_superquadric`), or to where in them the surface was
+    ``measured`` (then points on the surface); the part as it was where that fit does not
     explain its cells."""
-    if slack <= 0.0 or not parts:
+    if (slack <= 0.0 and measured is None) or not parts:
         return parts
     owner = _owners(points, parts)
     polished = []
@@ -279,8 +293,8 @@ def _polished(points: Points, weights: Weights, parts: list[Part], resolution: f
         members = np.flatnonzero(owner == k)
         better = None
         if len(members) >= MIN_PART_CELLS:
-            better, _ = _fit_part(points, weights, members, resolution, part.superquadric,
-                                  slack=slack)
+            better, _ = _fit_part(points if measured is None else measured, weights, members,
+                                  resolution, part.superquadric, slack=slack)
         polished.append(part if better is None else better)
     return sorted(polished, key=lambda p: len(p.cells), reverse=True)
 

@@ -53,6 +53,14 @@ class MapCells:
     problem: str | None = None  # a damaged bag: what stopped the reading early
     colours: np.ndarray | None = None   # (n, 3) uint8 RGB from the camera, 0 where untextured
     textured: np.ndarray | None = None  # (n,) bool: the camera saw the cell (None: no colours)
+    contact_centroids: np.ndarray | None = None  # (n, 3): where in each cell its hits were
+    # (their mean; the centre where none): an NPZ's, None for a PLY or a cloud, which keep none
+
+    @property
+    def surface_points(self) -> np.ndarray:
+        """(n, 3): where in each cell the surface was measured, as well as the file says:
+        the contact centroids of an NPZ, else the cell centres."""
+        return self.centres if self.contact_centroids is None else self.contact_centroids
 
     @property
     def has_colours(self) -> bool:
@@ -211,7 +219,8 @@ def _read_npz(path: Path) -> MapCells:
     return MapCells(centres, np.asarray(probabilities, dtype=float),
                     hits.astype(np.int64), _relative(first_touch), lattice, 'npz',
                     str(path), True, metadata.get('frame_id', 'object'), metadata,
-                    colours=colours, textured=textured)
+                    colours=colours, textured=textured,
+                    contact_centroids=grid.contact_centroids())
 
 
 def _read_bag_cloud(bag: Path, resolution: float | None) -> MapCells:

@@ -1,6 +1,11 @@
 """ROS 2 node ``shape_node``: the map's surface mesh, superquadric parts and grasps on request.
 
-Subscribes ``occupancy/occupied`` (the occupancy node's occupied cells, latched). The service
+Subscribes ``occupancy/occupied`` (the occupancy node's occupied cells, latched) and
+``registration/points`` (the registered fingertip positions the map is made of: where in
+each occupied cell they fell places the parts' last fit to better than a cell, as the map
+file's contact centroids do for ``extract_shape``; the newest :data:`KEPT_POSITIONS`
+are kept, and a cell none of them fell in counts with its centre; with none placed, the
+cells are fitted with their slack, as from a PLY). The service
 ``shape/extract`` (std_srvs/Trigger) runs the shape extraction (inhand_shape.shape_extraction)
 on the latest map and publishes, reliable and transient-local, in the map's frame:
 
@@ -8,7 +13,8 @@ on the latest map and publishes, reliable and transient-local, in the map's fram
   graspable part orange), the grasps as a LINE_LIST between their contacts;
 * ``shape/surface`` (visualization_msgs/Marker): the surface mesh, TRIANGLE_LIST.
 
-The answer is the one-line summary (parts, graspable part, grasps, holes); ``success`` is
+The answer is the one-line summary (parts, graspable part, grasps, holes) and how many cells
+the registered positions placed; ``success`` is
 false when there is no map yet or no part explains the cells (the message says why).
 Parameters: friction, max_parts, occupied_threshold (the ``shape_node`` section).
 """
@@ -26,13 +32,17 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from inhand_common.cell_lattice import infer_lattice
+from inhand_common.contact_centroids import RecentPositions, centroids, position_sums
 from inhand_common.node_runner import run_node
 from inhand_common.point_cloud import from_point_cloud2
+from inhand_common.ros_matches import logged_subscription_matches
 from inhand_common.ros_parameters import declare_parameters
-from inhand_mapping.qos import LATCHED_QOS
+from inhand_mapping.cloud_layouts import unpack_registered
+from inhand_mapping.qos import DATA_QOS, LATCHED_QOS
 from inhand_shape.shape_display import DisplayItem, part_items, surface_item
 from inhand_shape.shape_extraction import SHAPE_PARAMETERS, extract_shape
 
+KEPT_POSITIONS = 3_000_000   # 36 MB: 70 min of three fingers at 240 Hz
 MARKER_TYPES = {'triangles': Marker.TRIANGLE_LIST, 'lines': Marker.LINE_LIST, 'points': Marker.POINTS}
 
 
@@ -59,6 +69,10 @@ class ShapeNode(Node):
         self._cells = None
         self._frame_id = 'object'
         self.create_subscription(PointCloud2, 'occupancy/occupied', self._on_map, LATCHED_QOS)
+        self._positions = RecentPositions(KEPT_POSITIONS)
+        self.create_subscription(
+            PointCloud2, 'registration/points', self._on_points, DATA_QOS,
+            event_callbacks=logged_subscription_matches(self, 'registration/points'))
         self._parts = self.create_publisher(MarkerArray, 'shape/parts', LATCHED_QOS)
         self._surface = self.create_publisher(Marker, 'shape/surface', LATCHED_QOS)
         self.create_service(Trigger, 'shape/extract', self._on_extract)
@@ -69,6 +83,14 @@ class ShapeNode(Node):
     def _on_map(self, msg: PointCloud2) -> None:
         self._cells = from_point_cloud2(msg)
         self._frame_id = msg.header.frame_id or 'object'
+
+    def _on_points(self, msg: PointCloud2) -> None:
+        dropped = self._positions.dropped
+        self._positions.add(unpack_registered(from_point_cloud2(msg))[0])
+        if self._positions.dropped and not dropped:
+            self.get_logger().warning(
+                f'more than {KEPT_POSITIONS} registered positions: the oldest no longer place '
+                'the surface in their cells')
 
     def _on_extract(self, _request, response):
         cells = self._cells
@@ -82,11 +104,15 @@ class ShapeNode(Node):
             response.success, response.message = False, 'the map has one occupied cell: nothing to fit'
             return response
         started = time.monotonic()
+        sums, counts = position_sums(self._positions.points(), centres, lattice)
         result = extract_shape(centres, cells['intensity'], cells['hits'], cells['first_touch'],
                                resolution=lattice.resolution, origin=lattice.origin,
                                threshold=self.parameters['occupied_threshold'],
                                friction=self.parameters['friction'],
-                               max_parts=self.parameters['max_parts'], frame_id=self._frame_id)
+                               max_parts=self.parameters['max_parts'], frame_id=self._frame_id,
+                               # none placed (the node started after the touches): the
+                               # cells with their slack, not their centres as points
+                               surface_points=centroids(centres, sums, counts) if counts.any() else None)
         stamp = self.get_clock().now().to_msg()
         array = MarkerArray()
         clear = Marker()
@@ -97,7 +123,8 @@ class ShapeNode(Node):
         self._parts.publish(array)
         self._surface.publish(_marker(surface_item(result), 0, self._frame_id, stamp))
         response.success = result.decomposition.reason is None
-        response.message = result.summary()
+        response.message = (f'{result.summary()}; {int(np.count_nonzero(counts))} of {len(centres)} '
+                            'cells placed by the registered positions')
         self.get_logger().info(f'{response.message} ({time.monotonic() - started:.1f} s)')
         return response
 
