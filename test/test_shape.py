@@ -202,6 +202,29 @@ def test_where_the_touches_fell_in_each_cell_places_the_fit_better_than_the_cell
         decompose(cells, resolution=RESOLUTION, surface_points=means[:-1])
 
 
+def test_the_last_fit_on_where_the_touches_were_tries_the_switched_twin_too():
+    """A rounded cube (e 0.5) and its switched twin (e2 1.5, turned 45 degrees about z) fit
+    cells alike; the means of the touches in the cells tell them apart. The last fit, started
+    on the twin, ends on the twin alone, and on the rounded cube when it tries both (as the
+    fit on the map's contact centroids does)."""
+    rng = np.random.default_rng(0)
+    sq = _sq((3.2, 3.2, 3.2), (0.5, 0.5))
+    samples = sq.surface_samples(20_000, rng) + rng.normal(0, 0.001, (20_000, 3))
+    keys, owner, counts = np.unique(np.floor(samples / RESOLUTION).astype(int), axis=0,
+                                    return_inverse=True, return_counts=True)
+    means = np.zeros((len(keys), 3))
+    np.add.at(means, owner.reshape(-1), samples)
+    means /= counts[:, None]
+    reach = 2.0 ** ((1.0 - 0.5) / 2) / 2.0 ** ((1.0 - 1.5) / 2)
+    twin = Superquadric(sq.size * np.array([reach, reach, 1.0]), (0.5, 1.5),
+                        sq.rotation @ Rotation.from_euler('z', 45, degrees=True).as_matrix(), sq.centre)
+    fits = {both: fit_superquadric(means, resolution=RESOLUTION, start=twin, slack=0.0,
+                                   twin=both).superquadric for both in (False, True)}
+    assert abs(fits[False].shape[1] - 1.5) < 0.1
+    assert np.allclose(fits[True].shape, (0.5, 0.5), atol=0.1)
+    assert np.abs(fits[True].size - sq.size).max() < 0.0003
+
+
 def test_the_surface_mesh_is_closed_where_the_cells_are_and_open_where_they_are_not():
     rng = np.random.default_rng(4)
     sphere = Superquadric(np.full(3, 0.04), (1.0, 1.0), np.eye(3), CENTRE)

@@ -121,12 +121,12 @@ def _sheet_reason(points: Points, resolution: float) -> str | None:
 
 
 def _fit_part(points: Points, weights: Weights, members: NDArray[np.intp], resolution: float,
-              start: Superquadric | None = None, reach: float = REACH_WEIGHT, slack: float = 0.0
-              ) -> tuple[Part | None, FitResult]:
+              start: Superquadric | None = None, reach: float = REACH_WEIGHT, slack: float = 0.0,
+              twin: bool = False) -> tuple[Part | None, FitResult]:
     """The part fitted to ``members`` (None when it does not explain them), and the fit;
     ``start``, ``reach`` and ``slack`` as for :func:`fit_superquadric`."""
     fit = fit_superquadric(points[members], weights[members], resolution=resolution, start=start,
-                           reach=reach, slack=slack)
+                           reach=reach, slack=slack, twin=twin)
     # only the cells on the surface vouch for it: a shape large enough to hold every cell
     # explains nothing
     surface = fit.distances <= resolution     # on_surface of the cells it was fitted to
@@ -294,7 +294,8 @@ def _polished(points: Points, weights: Weights, parts: list[Part], resolution: f
         better = None
         if len(members) >= MIN_PART_CELLS:
             better, _ = _fit_part(points if measured is None else measured, weights, members,
-                                  resolution, part.superquadric, slack=slack)
+                                  resolution, part.superquadric, slack=slack,
+                                  twin=measured is not None)
         polished.append(part if better is None else better)
     return sorted(polished, key=lambda p: len(p.cells), reverse=True)
 

@@ -55,8 +55,9 @@ passed: the map keeps the sum of the fingertip positions counted in each cell, a
 mean (the cell's contact centroid, inhand_common.contact_centroids) lies on the surface to
 the tracker's noise, 0.4-0.7 mm median against 1.4-2.5 mm for the centres. Given them
 (``surface_points``), the shape searched on the cells is fitted last to them, as points on
-the surface (docs/shape.md, "Where the touches were": within 1.2x of the dense reference on
-16 and 14 of 20 sessions instead of 7 and 9).
+the surface, from where the search left it and from its switched twin, the more likely (a
+rounded cube and its twin fit cells alike, not the touches; docs/shape.md, "Where the
+touches were").
 
 :func:`fit_least_squares` is the classic baseline (Solina and Bajcsy 1990): least squares
 on ``sqrt(a1 a2 a3) (F^e1 - 1)`` from the same starts, every cell counted, no outliers.
@@ -539,8 +540,8 @@ def _prepared(points: ArrayLike, weights: ArrayLike | None
 def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
                      resolution: float = 0.005, outlier_ratio: float = 0.2,
                      start: Superquadric | None = None, reach: float = REACH_WEIGHT,
-                     slack: float | None = None, surface_points: ArrayLike | None = None
-                     ) -> FitResult:
+                     slack: float | None = None, surface_points: ArrayLike | None = None,
+                     twin: bool = False) -> FitResult:
     """The superquadric that best explains ``points`` (N, 3) m (cell centres) weighted by
     ``weights`` (N,) (occupancy probabilities; default 1), with the outlier model of the
     module doc. ``resolution`` (the cell size) floors the surface's spread. ``start``: a
@@ -552,13 +553,14 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
     ``start`` the search runs without it and the shape found is then fitted again with it.
     ``surface_points`` (N, 3): where in each cell the surface was measured (the map's
     contact centroids): the shape found on the cells is then fitted again to them, as points
-    on the surface (no slack). ValueError for fewer than 10 points."""
+    on the surface (no slack), from where it is and from its switched twin (``twin``: so
+    for a fit from ``start``), the more likely. ValueError for fewer than 10 points."""
     if surface_points is not None:
         found = fit_superquadric(points, weights, resolution=resolution,
                                  outlier_ratio=outlier_ratio, start=start, reach=reach, slack=slack)
         return fit_superquadric(surface_points, weights, resolution=resolution,
                                 outlier_ratio=outlier_ratio, start=found.superquadric,
-                                reach=reach, slack=0.0)
+                                reach=reach, slack=0.0, twin=True)
     cells, w, fit_cells, fit_weights = _prepared(points, weights)
     within = (CELL_SLACK if slack is None else slack) * resolution
     if start is None:
@@ -566,13 +568,15 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
         if within <= 0.0:
             return found
         start = found.superquadric
-    return _fit(cells, w, fit_cells, fit_weights, resolution, outlier_ratio, start, reach, within)
+    return _fit(cells, w, fit_cells, fit_weights, resolution, outlier_ratio, start, reach, within,
+                twin=twin)
 
 
 def _fit(cells: Points, w: Weights, fit_cells: Points, fit_weights: Weights, resolution: float,
-         outlier_ratio: float, start: Superquadric | None, reach: float, slack: float
-         ) -> FitResult:
-    """:func:`fit_superquadric` with ``slack`` in metres: from ``start``, or searched for."""
+         outlier_ratio: float, start: Superquadric | None, reach: float, slack: float,
+         twin: bool = False) -> FitResult:
+    """:func:`fit_superquadric` with ``slack`` in metres: from ``start``, or searched for;
+    ``twin``: from ``start`` and from its switched twin, the more likely."""
     if start is None:
         # A few EM steps from each start, then the most likely one and its switched twin
         # carried on to convergence.
@@ -585,6 +589,8 @@ def _fit(cells: Points, w: Weights, fit_cells: Points, fit_weights: Weights, res
         candidates = [leader, _switched(leader)]
     else:
         candidates = [_state_of(start, fit_cells, resolution, slack=slack)]
+        if twin:
+            candidates.append(_switched(candidates[0]))
     # The cells' own spread is about a cell: a larger sigma would let one shape through
     # two parts pass for a fit of both.
     finals = [_em(fit_cells, fit_weights, state, resolution, outlier_ratio, EM_ITERATIONS,
