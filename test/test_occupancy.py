@@ -535,11 +535,15 @@ def test_each_cell_keeps_where_its_hits_were_and_their_mean_places_its_surface(t
 def test_the_shape_nodes_store_keeps_the_newest_positions_and_far_ones_fall_in_no_cell():
     from inhand_common.cell_lattice import Lattice
     from inhand_common.contact_centroids import RecentPositions, centroids, position_sums
-    store = RecentPositions(5)
-    for k in range(4):
+    store = RecentPositions(8)
+    for k in range(5):
         store.add(np.full((2, 3), float(k)))
-    assert len(store) == 5 and store.dropped == 3
-    assert np.array_equal(store.points()[:, 0], [1.0, 2.0, 2.0, 3.0, 3.0])
+    # over the capacity by a quarter at most before the oldest go: none dropped yet
+    assert len(store) == 8 and store.dropped == 0
+    assert np.array_equal(store.points()[:, 0], [1.0, 1.0, 2.0, 2.0, 3.0, 3.0, 4.0, 4.0])
+    store.add(np.full((1, 3), 5.0))
+    assert len(store) == 8 and store.dropped == 3
+    assert np.array_equal(store.points()[:, 0], [1.0, 2.0, 2.0, 3.0, 3.0, 4.0, 4.0, 5.0])
     lattice = Lattice(0.01)
     centres = np.array([[0.005, 0.005, 0.005], [0.015, 0.005, 0.005]])
     far = np.array([[0.002, 0.004, 0.006], [1e12, 0.0, 0.0], [np.nan, 0.0, 0.0], [0.013, 0.001, 0.009]])

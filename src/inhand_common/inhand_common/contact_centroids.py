@@ -72,7 +72,9 @@ def position_sums(points: ArrayLike, centres: ArrayLike, lattice: Lattice
 class RecentPositions:
     """The newest ``capacity`` positions given to :meth:`add` (float32, as the registered
     points arrive), for a consumer that sums them per cell only when asked
-    (:func:`position_sums`). Past the capacity the oldest go; :attr:`dropped` counts them."""
+    (:func:`position_sums`). Past the capacity the oldest go (:attr:`dropped` counts them),
+    a quarter of the capacity at a time, so that a full store does not copy itself on
+    every message."""
 
     def __init__(self, capacity: int):
         if capacity < 1:
@@ -83,7 +85,7 @@ class RecentPositions:
         self._held = 0
 
     def __len__(self) -> int:
-        return self._held
+        return min(self._held, self.capacity)
 
     def add(self, points: ArrayLike) -> None:
         chunk = np.asarray(points, dtype=np.float32).reshape(-1, 3)
@@ -91,13 +93,13 @@ class RecentPositions:
             return
         self._chunks.append(chunk)
         self._held += len(chunk)
-        if self._held > self.capacity:
+        if self._held > self.capacity + self.capacity // 4:
             kept = np.concatenate(self._chunks)[-self.capacity:]
             self.dropped += self._held - len(kept)
             self._chunks, self._held = [kept], len(kept)
 
     def points(self) -> Points:
-        """(K, 3) float64, oldest first."""
+        """(K, 3) float64, oldest first: the newest ``capacity``."""
         if not self._chunks:
             return np.empty((0, 3))
-        return np.concatenate(self._chunks).astype(np.float64)
+        return np.concatenate(self._chunks)[-self.capacity:].astype(np.float64)
