@@ -3,7 +3,7 @@
 A cell is occupied when the surface passes anywhere through it, so its centre is up to
 half a cell (sqrt(3)/2 at a corner) off the surface: 1.4-2.5 mm median on 5 mm cells of
 the shape benchmark's touch maps. The mean of the fingertip positions that fell in the
-cell lies on the surface to the tracker's noise: 0.5-1.0 mm there (docs/shape.md, "Where
+cell lies on the surface to the tracker's noise: 0.4-1.0 mm there (docs/shape.md, "Where
 the touches were"). The occupancy grid keeps the sums beside the hit counts
 (``OccupancyGrid.contact_sum``); a consumer that has only a map cloud (the shape node)
 sums the registered positions itself with :func:`position_sums`. Plain numpy, no ROS.
