@@ -553,6 +553,14 @@ def test_the_shape_nodes_store_keeps_the_newest_positions_and_far_ones_fall_in_n
     assert np.array_equal(centroids(centres, sums, [0, 0]), centres)
     with pytest.raises(ValueError, match='2 cells, 2 sums and 1 counts'):
         centroids(centres, sums, [1])
+    # at most each cell's newest as many as the map's hits there (older: before a reset)
+    stream = np.array([[0.001, 0.001, 0.001], [0.012, 0.002, 0.002], [0.003, 0.003, 0.003],
+                       [0.009, 0.009, 0.009], [0.014, 0.004, 0.004]])
+    sums, counts = position_sums(stream, centres, lattice, newest=[2, 5])
+    assert counts.tolist() == [2, 2]
+    assert np.allclose(sums[0], stream[2] + stream[3]) and np.allclose(sums[1], stream[1] + stream[4])
+    sums, counts = position_sums(stream, centres, lattice, newest=[1, 0])
+    assert counts.tolist() == [1, 0] and np.allclose(sums[0], stream[3])
 
 
 def test_first_touch_is_the_earliest_time_and_never_moves_later():

@@ -35,11 +35,13 @@ def centroids(centres: ArrayLike, sums: ArrayLike, counts: ArrayLike) -> Points:
     return means
 
 
-def position_sums(points: ArrayLike, centres: ArrayLike, lattice: Lattice
-                  ) -> tuple[Points, np.ndarray]:
-    """The sum (M, 3) and count (M,) of the ``points`` (K, 3) that fall in each of the
-    cells whose ``centres`` (M, 3) are given on ``lattice``; points in no such cell and
-    non-finite points are left out."""
+def position_sums(points: ArrayLike, centres: ArrayLike, lattice: Lattice,
+                  newest: ArrayLike | None = None) -> tuple[Points, np.ndarray]:
+    """The sum (M, 3) and count (M,) of the ``points`` (K, 3, oldest first) that fall in
+    each of the cells whose ``centres`` (M, 3) are given on ``lattice``; points in no such
+    cell and non-finite points are left out. ``newest`` (M,): at most this many of each
+    cell's newest points count (the map's hit counts: points from before a reset of the
+    map are then not its own)."""
     cell_centres = np.asarray(centres, dtype=float).reshape(-1, 3)
     positions = np.asarray(points, dtype=float).reshape(-1, 3)
     positions = positions[np.isfinite(positions).all(axis=1)]
@@ -62,9 +64,19 @@ def position_sums(points: ArrayLike, centres: ArrayLike, lattice: Lattice
     where = np.clip(np.searchsorted(cell_keys[order], point_keys), 0, len(order) - 1)
     inside = cell_keys[order][where] == point_keys
     owner = order[where[inside]]
+    positions = positions[inside]
+    if newest is not None:
+        # each point's place from the newest in its cell (0: the newest)
+        by_cell = np.argsort(owner, kind='stable')
+        total = np.bincount(owner, minlength=len(cell_centres))
+        start = np.cumsum(total) - total
+        place = np.empty(len(owner), dtype=np.int64)
+        place[by_cell] = np.arange(len(owner)) - start[owner[by_cell]]
+        keep = total[owner] - 1 - place < np.asarray(newest).reshape(-1)[owner]
+        owner, positions = owner[keep], positions[keep]
     counts = np.bincount(owner, minlength=len(cell_centres)).astype(np.int64)
     for axis in range(3):
-        sums[:, axis] = np.bincount(owner, weights=positions[inside, axis],
+        sums[:, axis] = np.bincount(owner, weights=positions[:, axis],
                                     minlength=len(cell_centres))
     return sums, counts
 

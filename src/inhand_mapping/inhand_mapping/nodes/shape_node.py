@@ -4,8 +4,9 @@ Subscribes ``occupancy/occupied`` (the occupancy node's occupied cells, latched)
 ``registration/points`` (the registered fingertip positions the map is made of: where in
 each occupied cell they fell places the parts' last fit to better than a cell, as the map
 file's contact centroids do for ``extract_shape``; the newest :data:`KEPT_POSITIONS`
-are kept, and a cell none of them fell in counts with its centre; with none placed, the
-cells are fitted with their slack, as from a PLY). The service
+are kept, each cell's newest as many as the map's hits there, so that positions from
+before an ``occupancy/reset`` drop out; a cell none of them fell in counts with its centre;
+with none placed, the cells are fitted with their slack, as from a PLY). The service
 ``shape/extract`` (std_srvs/Trigger) runs the shape extraction (inhand_shape.shape_extraction)
 on the latest map and publishes, reliable and transient-local, in the map's frame:
 
@@ -104,7 +105,9 @@ class ShapeNode(Node):
             response.success, response.message = False, 'the map has one occupied cell: nothing to fit'
             return response
         started = time.monotonic()
-        sums, counts = position_sums(self._positions.points(), centres, lattice)
+        # each cell's newest positions, as many as the map's hits there: those from before
+        # an occupancy/reset are not the map's
+        sums, counts = position_sums(self._positions.points(), centres, lattice, cells['hits'])
         result = extract_shape(centres, cells['intensity'], cells['hits'], cells['first_touch'],
                                resolution=lattice.resolution, origin=lattice.origin,
                                threshold=self.parameters['occupied_threshold'],
