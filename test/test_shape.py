@@ -37,6 +37,17 @@ def _cells(sq: Superquadric, rng, keep=None, noise=0.001) -> np.ndarray:
     return (np.unique(np.floor(points / RESOLUTION).astype(int), axis=0) + 0.5) * RESOLUTION
 
 
+def _cells_and_means(sq: Superquadric, rng, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The cells (centres) of ``count`` noisy surface samples on a 5 mm lattice, and the mean
+    of the samples in each: what a map's contact centroids are to its touches."""
+    samples = sq.surface_samples(count, rng) + rng.normal(0, 0.001, (count, 3))
+    keys, owner, counts = np.unique(np.floor(samples / RESOLUTION).astype(int), axis=0,
+                                    return_inverse=True, return_counts=True)
+    means = np.zeros((len(keys), 3))
+    np.add.at(means, owner.reshape(-1), samples)
+    return (keys + 0.5) * RESOLUTION, means / counts[:, None]
+
+
 def _chamfer(a: Superquadric, b: Superquadric, rng) -> float:
     from scipy.spatial import cKDTree
     pa, pb = a.surface_samples(3000, rng), b.surface_samples(3000, rng)
@@ -182,13 +193,7 @@ def test_where_the_touches_fell_in_each_cell_places_the_fit_better_than_the_cell
     their slack. (A diamond and its turned twin look alike to any fit: docs/shape.md.)"""
     rng = np.random.default_rng(seed)
     sq = _sq(size, shape)
-    samples = sq.surface_samples(20_000, rng) + rng.normal(0, 0.001, (20_000, 3))
-    keys, owner, counts = np.unique(np.floor(samples / RESOLUTION).astype(int), axis=0,
-                                    return_inverse=True, return_counts=True)
-    cells = (keys + 0.5) * RESOLUTION
-    means = np.zeros_like(cells)
-    np.add.at(means, owner.reshape(-1), samples)
-    means /= counts[:, None]
+    cells, means = _cells_and_means(sq, rng, 20_000)
 
     def size_error(fit: Superquadric) -> float:
         return float(np.abs(np.sort(fit.size) - np.sort(sq.size)).max())
@@ -209,12 +214,7 @@ def test_the_last_fit_on_where_the_touches_were_tries_the_switched_twin_too():
     fit on the map's contact centroids does)."""
     rng = np.random.default_rng(0)
     sq = _sq((3.2, 3.2, 3.2), (0.5, 0.5))
-    samples = sq.surface_samples(20_000, rng) + rng.normal(0, 0.001, (20_000, 3))
-    keys, owner, counts = np.unique(np.floor(samples / RESOLUTION).astype(int), axis=0,
-                                    return_inverse=True, return_counts=True)
-    means = np.zeros((len(keys), 3))
-    np.add.at(means, owner.reshape(-1), samples)
-    means /= counts[:, None]
+    _, means = _cells_and_means(sq, rng, 20_000)
     reach = 2.0 ** ((1.0 - 0.5) / 2) / 2.0 ** ((1.0 - 1.5) / 2)
     twin = Superquadric(sq.size * np.array([reach, reach, 1.0]), (0.5, 1.5),
                         sq.rotation @ Rotation.from_euler('z', 45, degrees=True).as_matrix(), sq.centre)
@@ -237,6 +237,27 @@ def test_the_surface_mesh_is_closed_where_the_cells_are_and_open_where_they_are_
     assert cut.area < closed.area * 0.9
     assert np.all(cut.vertices[:, 2] > CENTRE[2] - 0.02 - 2 * RESOLUTION)  # nothing invented
     assert len(surface_mesh(np.zeros((0, 3)), RESOLUTION).faces) == 0
+
+
+def test_the_surface_mesh_passes_where_the_touches_were_in_each_cell():
+    """Each cell's tangent plane through the mean of the touches in it (the map's contact
+    centroid) instead of its centre: the mesh of a closed ellipsoid's cells lies nearer its
+    true surface, still closed."""
+    from scipy.spatial import cKDTree
+
+    from inhand_shape.superquadric import area_samples
+    rng = np.random.default_rng(5)
+    sq = _sq((6, 4, 3), (1.0, 1.0))
+    cells, means = _cells_and_means(sq, rng, 30_000)
+    truth = cKDTree(sq.surface_samples(60_000, rng))
+    off = {}
+    for name, through in (('centres', None), ('touches', means)):
+        mesh = surface_mesh(cells, RESOLUTION, surface_points=through)
+        assert mesh.holes == 0, name
+        off[name] = truth.query(area_samples(mesh.vertices, mesh.faces, 20_000, rng))[0].mean()
+    assert off['touches'] < 0.7 * off['centres'], off
+    with pytest.raises(ValueError, match='surface points'):
+        surface_mesh(cells, RESOLUTION, surface_points=means[:-1])
 
 
 def test_two_separate_shapes_are_two_parts_and_one_shape_is_one():

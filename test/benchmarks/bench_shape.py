@@ -23,7 +23,8 @@ config/stereo.yaml`` (touch + one stereo pair). Per session it prints:
   and for ours on dense points of the true surface (the best the fit can do). The fits
   search on the occupied cells and end on where in each cell the touches were (the map's
   contact centroids; the classic fit takes those); ``--centres-only``: cell centres alone;
-* times of the mesh, the parts, and one superquadric; the mesh's holes;
+* times of the mesh, the parts, and one superquadric; the mesh's holes, its median distance
+  to the true surface (sampled by area) and the share of its area farther than 5 mm;
 * on objects with a handle (the hand starts on it and comes back to it most:
   ``--hand focus_centre=...``; ``--no-focus``: explored like any other), whether the
   graspable part named is the handle.
@@ -56,6 +57,16 @@ def _chamfer(parts, truth_points: np.ndarray, rng) -> float:
     fitted = np.concatenate([p.surface_samples(4000 // len(parts), rng) for p in parts])
     return 0.5 * (cKDTree(fitted).query(truth_points)[0].mean()
                   + cKDTree(truth_points).query(fitted)[0].mean())
+
+
+def _mesh_off(mesh, truth_points: np.ndarray, rng) -> tuple[float, float]:
+    """The surface mesh (sampled by area) against the true surface: the median distance (m)
+    and the share of the mesh's area farther than 5 mm (the surface of stray cells)."""
+    from inhand_shape.superquadric import area_samples
+    if len(mesh.faces) == 0:
+        return float('nan'), float('nan')
+    off = cKDTree(truth_points).query(area_samples(mesh.vertices, mesh.faces, 20000, rng))[0]
+    return float(np.median(off)), float(np.mean(off > 0.005))
 
 
 def _axis_errors(fit, truth) -> tuple[float, float | None, float, float | None]:
@@ -147,7 +158,8 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     row = {'name': name, 'seed': seed, 'mode': 'static' if static else 'tracked', 'parts': len(found),
            'true_parts': len(truth_parts), 'holes': result.mesh.holes,
            'mesh_s': result.seconds['mesh'], 'parts_s': result.seconds['parts'],
-           'chamfer': _chamfer(found, truth_sample, rng), 'reason': result.decomposition.reason}
+           'chamfer': _chamfer(found, truth_sample, rng), 'reason': result.decomposition.reason,
+           'mesh_off': _mesh_off(result.mesh, surface, np.random.default_rng(1))}
     errors = []
     for part in found:
         nearest = min(truth_parts, key=lambda t: np.linalg.norm(t.centre - part.centre))
@@ -194,7 +206,8 @@ def _print_row(row: dict) -> None:
     print(f"{row['name']:9s} {row['mode']:7s} {row['parts']:2d}/{row['true_parts']:<2d} {size_text} "
           f"{exp_text} {centre_text} {angle_text}  {row['chamfer'] * 1000:6.1f} "
           f"{row['chamfer_dense'] * 1000:6.1f}"
-          f"  {one}  {row['holes']:5d} {row['mesh_s']:5.2f} {row['parts_s']:6.2f}"
+          f"  {one}  {row['holes']:5d} {row['mesh_off'][0] * 1000:5.2f} {row['mesh_s']:5.2f} "
+          f"{row['parts_s']:6.2f}"
           + ('' if 'graspable_right' not in row else
              '  graspable: ' + ('handle' if row['graspable_right'] else 'WRONG'))
           + (f"  ({row['reason']})" if row['reason'] else ''), flush=True)
@@ -226,6 +239,10 @@ def _summary(rows: list[dict], label: str) -> None:
     within = sum(v <= 1.2 for v in ratio)
     print(f'Chamfer within 1.2x of the dense-truth fit on {within} of {len(ratio)} sessions; '
           f"median Chamfer {np.median([r['chamfer'] for r in rows]) * 1000:.1f} mm")
+    print(f"surface mesh: median distance to the true surface "
+          f"{np.nanmean([r['mesh_off'][0] for r in rows]) * 1000:.2f} mm (mean over the sessions), "
+          f"{np.nanmean([r['mesh_off'][1] for r in rows]):.1%} of its area farther than 5 mm, "
+          f"{sum(r['holes'] for r in rows)} holes in all")
     print(f"decomposition: {max(r['parts_s'] for r in rows):.2f} s at most, median "
           f"{np.median([r['parts_s'] for r in rows]):.2f} s (target 10 s); mesh: "
           f"{max(r['mesh_s'] for r in rows):.2f} s at most (target 0.5 s)")
@@ -255,9 +272,9 @@ def main() -> int:
         folder = args.keep or Path(scratch)
         folder.mkdir(parents=True, exist_ok=True)
         print('shape     mode    parts  size   exp  centre  axes  chamfer  dense   one  classic  holes  '
-              'mesh  parts')
-        print('                          err   err    mm     deg     mm     mm    mm      mm          s '
-              '     s')
+              'mesh   mesh  parts')
+        print('                          err   err    mm     deg     mm     mm    mm      mm         mm  '
+              '    s      s')
         rows: list[dict] = []
         for seed in args.seeds:
             for name in args.shapes:

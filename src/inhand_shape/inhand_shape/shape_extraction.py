@@ -93,7 +93,8 @@ def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
     """The shape of the map whose cells are given (centres (N, 3) m, probabilities, hits,
     first-touch times; any cells, those at or above ``threshold`` are used).
     ``surface_points`` (N, 3) m: where in each cell the surface was measured (the map's
-    contact centroids); the parts' last fit takes them (shape_parts.decompose)."""
+    contact centroids); the surface mesh's tangent planes pass there (surface_mesh) and the
+    parts' last fit takes them (shape_parts.decompose)."""
     if not 0 < threshold < 1:
         raise ValueError(f'threshold {threshold}: must be in (0, 1)')
     if not friction >= 0:
@@ -103,11 +104,11 @@ def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
     cells = np.asarray(centres, dtype=float).reshape(-1, 3)[keep]
     seconds = {}
     start = time.perf_counter()
-    mesh = surface_mesh(cells, resolution, origin)
-    seconds['mesh'] = time.perf_counter() - start
-    start = time.perf_counter()
     measured = None if surface_points is None else \
         np.asarray(surface_points, dtype=float).reshape(-1, 3)[keep]
+    mesh = surface_mesh(cells, resolution, origin, surface_points=measured)
+    seconds['mesh'] = time.perf_counter() - start
+    start = time.perf_counter()
     parts = decompose(cells, p[keep], resolution=resolution, max_parts=max_parts,
                       surface_points=measured)
     seconds['parts'] = time.perf_counter() - start

@@ -14,8 +14,11 @@ is the one surface the cells sample, and nothing where they are silent. So:
    of its cells do (area of a closed surface faces outward more than inward; the farthest
    cell alone is a poor judge: the tip of a tail or a leg has a sideways normal).
 3. **Signed distance** (Hoppe's tangent planes): at each lattice point near the cells, the
-   Gaussian-weighted mean of ``n . (x - p)`` over the nearest cells. The field exists only
-   within :data:`REACH` cells of a cell.
+   Gaussian-weighted mean of ``n . (x - p)`` over the nearest cells, ``p`` the cell's centre
+   or, where the map knows it, where in the cell the touches were (its contact centroid:
+   the mesh then lies 0.6 mm from the true surface on average instead of 1.0 mm on the
+   shape benchmark's maps, docs/shape.md). The field exists only within :data:`REACH`
+   cells of a cell.
 4. **Marching cubes** (scikit-image, with its mask) on that field, only where it exists: the
    surface ends where the evidence ends, and each gap stays a hole.
 
@@ -191,13 +194,19 @@ def _boundary(vertices: Points, faces: Faces) -> tuple[int, float]:
     return int(loops), length
 
 
-def surface_mesh(points: ArrayLike, resolution: float, origin: ArrayLike = (0.0, 0.0, 0.0)
-                 ) -> SurfaceMesh:
+def surface_mesh(points: ArrayLike, resolution: float, origin: ArrayLike = (0.0, 0.0, 0.0),
+                 surface_points: ArrayLike | None = None) -> SurfaceMesh:
     """The surface through the occupied cells whose centres are ``points`` (N, 3) m on the
     lattice of cell size ``resolution`` whose cell (0, 0, 0) has its low corner at
-    ``origin`` (the module doc's method). An empty mesh for fewer than 4 cells."""
+    ``origin`` (the module doc's method). ``surface_points`` (N, 3): where in each cell the
+    surface was measured (the map's contact centroids): each cell's tangent plane passes
+    there instead of through its centre. An empty mesh for fewer than 4 cells."""
     from skimage.measure import marching_cubes
     cells = np.asarray(points, dtype=float).reshape(-1, 3)
+    through = cells if surface_points is None else \
+        np.asarray(surface_points, dtype=float).reshape(-1, 3)
+    if through.shape != cells.shape:
+        raise ValueError(f'{len(through)} surface points for {len(cells)} cells')
     if len(cells) < 4:
         return SurfaceMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0, 0.0)
     normals = oriented_normals(cells, resolution)
@@ -213,7 +222,9 @@ def surface_mesh(points: ArrayLike, resolution: float, origin: ArrayLike = (0.0,
     lattice = np.argwhere(near)
     where = (lattice + low + 0.5) * resolution + np.asarray(origin, dtype=float)
     field = np.full(shape, np.nan)
-    field[tuple(lattice.T)] = tangent_plane_distance(cells, normals, where, resolution)
+    # the nearest cells by their centres, their planes through where the surface was measured
+    field[tuple(lattice.T)] = tangent_plane_distance(through, normals, where, resolution,
+                                                     neighbours=nearest_cells(cells, where))
     # only cubes whose eight corners all have a value
     known = ~np.isnan(field)
     # scikit-image looks the mask up at a cube's highest corner
