@@ -168,14 +168,14 @@ def test_a_touch_maps_cells_are_fitted_as_cells_with_their_slack(tmp_path):
             for slack in (0.0, None)}
     # where in each cell the touches were (the map's contact centroids): better still
     fits['measured'] = fit_superquadric(points, weights, resolution=RESOLUTION,
-                                        surface_points=cells.surface_points[occupied]).superquadric
+                                        surface_points=cells.contact_centroids[occupied]).superquadric
     radius = {slack: float(np.sort(fit.size)[:2].mean()) for slack, fit in fits.items()}
     roundness = {slack: max(fit.shape) for slack, fit in fits.items()}   # e2 of the round section
     true_radius = float(np.sort(truth.size)[:2].mean())
     error = {slack: abs(r - true_radius) for slack, r in radius.items()}
     assert max(error['measured'], error[None]) < 0.0006 < error[0.0], radius
     assert abs(roundness[None] - 1.0) < abs(roundness[0.0] - 1.0), roundness
-    centroids = cells.surface_points[occupied]
+    centroids = cells.contact_centroids[occupied]
     assert np.all(np.abs(centroids - points) <= RESOLUTION / 2 + 1e-9)
     off = {name: float(np.median(truth.surface_distance(at)))
            for name, at in (('centres', points), ('centroids', centroids))}
@@ -350,6 +350,31 @@ def test_extract_shape_writes_the_mesh_parts_and_picture_of_a_bundled_bags_map(b
     import trimesh
     mesh = trimesh.load(tmp_path / 'b_surface.stl')
     assert len(mesh.faces) == parts['surface']['triangles']
+
+
+def test_extract_shape_fits_an_npzs_contact_centroids_and_a_plys_cells_with_their_slack(bottle_map,
+                                                                                      tmp_path):
+    """A PLY keeps cell centres only: extract_shape fits them as cells (with their slack), as
+    the library does without surface points, not as points on the surface; the NPZ of the
+    same map gives its contact centroids to the fit."""
+    from inhand_shape.shape_extraction import extract_shape
+    from inhand_tools.commands.extract_shape import write_shape_of_map
+    from inhand_tools.map_cells import load_map
+    parameters = {'occupied_threshold': 0.8, 'friction': 0.5, 'max_parts': 5}
+    sizes = {}
+    for source in (bottle_map, bottle_map.with_suffix('.ply')):
+        cells = load_map(source)
+        assert (cells.contact_centroids is None) == (source.suffix == '.ply')
+        assert write_shape_of_map(source, tmp_path, source.suffix[1:], parameters, quiet=True) == 0
+        written = yaml.safe_load((tmp_path / f'{source.suffix[1:]}_parts.yaml').read_text())
+        sizes[source.suffix] = np.array([part['size'] for part in written['parts']])
+        library = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
+                                resolution=cells.lattice.resolution, origin=cells.lattice.origin,
+                                surface_points=cells.contact_centroids)
+        expected = np.array([p.superquadric.size for p in library.decomposition.parts])
+        assert np.allclose(sizes[source.suffix], expected, atol=1e-5), source.suffix
+    assert sizes['.npz'].shape != sizes['.ply'].shape or not np.allclose(sizes['.npz'], sizes['.ply'],
+                                                                          atol=1e-5)
 
 
 def test_extract_shape_refuses_a_bad_parameter_with_its_name_and_range(bottle_map, tmp_path):

@@ -152,7 +152,7 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     cells, truth_parts, surface = session(name, static, folder, duration, seed, focus_on_handle, stereo)
     result = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
                            resolution=cells.lattice.resolution, origin=cells.lattice.origin,
-                           surface_points=cells.surface_points if measured else None)
+                           surface_points=cells.contact_centroids if measured else None)
     found = [p.superquadric for p in result.decomposition.parts]
     truth_sample = surface[rng.choice(len(surface), min(len(surface), 6000), replace=False)]
     row = {'name': name, 'seed': seed, 'mode': 'static' if static else 'tracked', 'parts': len(found),
@@ -179,7 +179,7 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     if len(truth_parts) == 1:
         occupied = cells.probabilities >= 0.8
         points, weights = cells.centres[occupied], cells.probabilities[occupied]
-        surface = cells.surface_points[occupied] if measured else None
+        surface = cells.contact_centroids[occupied] if measured else None
         start = time.perf_counter()
         ours = fit_superquadric(points, weights, resolution=cells.lattice.resolution,
                                 surface_points=surface)

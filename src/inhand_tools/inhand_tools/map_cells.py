@@ -57,12 +57,6 @@ class MapCells:
     # (their mean; the centre where none): an NPZ's, None for a PLY or a cloud, which keep none
 
     @property
-    def surface_points(self) -> np.ndarray:
-        """(n, 3): where in each cell the surface was measured, as well as the file says:
-        the contact centroids of an NPZ, else the cell centres."""
-        return self.centres if self.contact_centroids is None else self.contact_centroids
-
-    @property
     def has_colours(self) -> bool:
         return self.colours is not None and self.textured is not None
 

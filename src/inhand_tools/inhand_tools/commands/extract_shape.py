@@ -57,7 +57,7 @@ def write_shape_of_map(map_path: Path, output: Path, name: str, parameters: dict
                            resolution=cells.lattice.resolution, origin=cells.lattice.origin,
                            threshold=parameters['occupied_threshold'],
                            friction=parameters['friction'], max_parts=parameters['max_parts'],
-                           frame_id=cells.frame_id, surface_points=cells.surface_points)
+                           frame_id=cells.frame_id, surface_points=cells.contact_centroids)
     figure = shape_figure(cells, result, f'{name}: shape of the map',
                           parameters['occupied_threshold'], up=up)
     ok, png = cv2.imencode('.png', figure)
