@@ -122,11 +122,11 @@ def _sheet_reason(points: Points, resolution: float) -> str | None:
 
 def _fit_part(points: Points, weights: Weights, members: NDArray[np.intp], resolution: float,
               start: Superquadric | None = None, reach: float = REACH_WEIGHT, slack: float = 0.0,
-              twin: bool = False) -> tuple[Part | None, FitResult]:
+              alternatives: bool = False) -> tuple[Part | None, FitResult]:
     """The part fitted to ``members`` (None when it does not explain them), and the fit;
-    ``start``, ``reach`` and ``slack`` as for :func:`fit_superquadric`."""
+    ``start``, ``reach``, ``slack`` and ``alternatives`` as for :func:`fit_superquadric`."""
     fit = fit_superquadric(points[members], weights[members], resolution=resolution, start=start,
-                           reach=reach, slack=slack, twin=twin)
+                           reach=reach, slack=slack, alternatives=alternatives)
     # only the cells on the surface vouch for it: a shape large enough to hold every cell
     # explains nothing
     surface = fit.distances <= resolution     # on_surface of the cells it was fitted to
@@ -295,7 +295,7 @@ def _polished(points: Points, weights: Weights, parts: list[Part], resolution: f
         if len(members) >= MIN_PART_CELLS:
             better, _ = _fit_part(points if measured is None else measured, weights, members,
                                   resolution, part.superquadric, slack=slack,
-                                  twin=measured is not None)
+                                  alternatives=measured is not None)
         polished.append(part if better is None else better)
     return sorted(polished, key=lambda p: len(p.cells), reverse=True)
 

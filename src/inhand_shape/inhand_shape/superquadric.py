@@ -55,8 +55,12 @@ passed: the map keeps the sum of the fingertip positions counted in each cell, a
 mean (the cell's contact centroid, inhand_common.contact_centroids) lies on the surface to
 the tracker's noise, 0.4-0.7 mm median against 1.4-2.5 mm for the centres. Given them
 (``surface_points``), the shape searched on the cells is fitted last to them, as points on
-the surface, from where the search left it and from its switched twin, the more likely (a
-rounded cube and its twin fit cells alike, not the touches; docs/shape.md, "Where the
+the surface, from where the search left it and from its switched twin (a rounded cube and
+its twin fit cells alike, not the touches), from the same pose and size with box-like,
+round and diamond-like exponents (``SHAPE_STARTS``) and their twins, and by a search on
+them alone; the most likely. The search on the cells can settle in a shape the touches
+tell apart from the truth only when the fit starts near it: a diamond found as a rounded
+box turned 45 degrees, a rounded cube as a tilted e ~ 1.2 blob (docs/shape.md, "Where the
 touches were").
 
 :func:`fit_least_squares` is the classic baseline (Solina and Bajcsy 1990): least squares
@@ -78,8 +82,8 @@ from scipy.special import beta  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Floats, Matrix3, Points, Vector3, Weights
 
-__all__ = ['EXPONENT_RANGE', 'FitResult', 'Superquadric', 'area_samples', 'fit_least_squares',
-           'fit_superquadric', 'radial_distance']
+__all__ = ['EXPONENT_RANGE', 'SHAPE_STARTS', 'FitResult', 'Superquadric', 'area_samples',
+           'fit_least_squares', 'fit_superquadric', 'radial_distance']
 
 EXPONENT_RANGE = (0.1, 1.9)    # box-like to diamond-like; outside it the shape degenerates
 MAX_FIT_CELLS = 800           # cells the EM iterations use (a probability-weighted subset)
@@ -95,6 +99,9 @@ REACH_MARGIN = 1.0         # cells: a shape reaches this far past its last inlie
 EM_SCOUT_ITERATIONS = 4    # EM steps from each start before the most likely goes on
 CELL_SLACK = 0.35          # cells: a cell centre this near the surface is on it (module doc,
                            # "cells, not points"; 0.25-0.5 measured, docs/shape.md)
+SHAPE_STARTS = ((0.2, 0.2), (1.0, 1.0), (1.6, 1.6))   # exponents the last fit on where the
+                           # touches were also starts from: box-like, round, diamond-like
+                           # (module doc, "Where the touches were")
 _FD_STEP = float(np.finfo(float).eps) ** 0.5   # scipy's relative step of '2-point' differences
 _TINY = 1e-12
 
@@ -541,7 +548,7 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
                      resolution: float = 0.005, outlier_ratio: float = 0.2,
                      start: Superquadric | None = None, reach: float = REACH_WEIGHT,
                      slack: float | None = None, surface_points: ArrayLike | None = None,
-                     twin: bool = False) -> FitResult:
+                     alternatives: bool = False) -> FitResult:
     """The superquadric that best explains ``points`` (N, 3) m (cell centres) weighted by
     ``weights`` (N,) (occupancy probabilities; default 1), with the outlier model of the
     module doc. ``resolution`` (the cell size) floors the surface's spread. ``start``: a
@@ -553,14 +560,16 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
     ``start`` the search runs without it and the shape found is then fitted again with it.
     ``surface_points`` (N, 3): where in each cell the surface was measured (the map's
     contact centroids): the shape found on the cells is then fitted again to them, as points
-    on the surface (no slack), from where it is and from its switched twin (``twin``: so
-    for a fit from ``start``), the more likely. ValueError for fewer than 10 points."""
+    on the surface (no slack), with its ``alternatives`` (so for a fit from ``start``): from
+    where it is and from its switched twin, from its pose and size with each exponent pair
+    of :data:`SHAPE_STARTS` and their twins, and by a search of their own; the most likely
+    (module doc, "Where the touches were"). ValueError for fewer than 10 points."""
     if surface_points is not None:
         found = fit_superquadric(points, weights, resolution=resolution,
                                  outlier_ratio=outlier_ratio, start=start, reach=reach, slack=slack)
         return fit_superquadric(surface_points, weights, resolution=resolution,
                                 outlier_ratio=outlier_ratio, start=found.superquadric,
-                                reach=reach, slack=0.0, twin=True)
+                                reach=reach, slack=0.0, alternatives=True)
     cells, w, fit_cells, fit_weights = _prepared(points, weights)
     within = (CELL_SLACK if slack is None else slack) * resolution
     if start is None:
@@ -568,8 +577,15 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
         if within <= 0.0:
             return found
         start = found.superquadric
-    return _fit(cells, w, fit_cells, fit_weights, resolution, outlier_ratio, start, reach, within,
-                twin=twin)
+    if not alternatives:
+        return _fit(cells, w, fit_cells, fit_weights, resolution, outlier_ratio, start, reach, within)
+    starts = [start] + [Superquadric(start.size, shape, start.rotation, start.centre)
+                        for shape in SHAPE_STARTS]
+    fits = [_fit(cells, w, fit_cells, fit_weights, resolution, outlier_ratio, s, reach, within,
+                 twin=True) for s in starts]
+    fits.append(fit_superquadric(cells, w, resolution=resolution, outlier_ratio=outlier_ratio,
+                                 reach=reach, slack=slack))
+    return max(fits, key=lambda fit: fit.log_likelihood)
 
 
 def _fit(cells: Points, w: Weights, fit_cells: Points, fit_weights: Weights, resolution: float,
