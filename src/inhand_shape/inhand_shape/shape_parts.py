@@ -17,8 +17,11 @@ support check then refuses); a growing seed is free to reach past them, since th
 the rest of its part is. Last, each part is fitted once more to its nearest cells with their
 slack (``CELL_SLACK``, superquadric.py: "cells, not points"), or, given where in each cell
 the touches were (``surface_points``, the map's contact centroids), to those, as points on
-the surface; the search and the part checks run on the cells without either, so this
-changes the parts' shapes, not which parts there are.
+the surface; the search and the part checks run on the cells without either. Polished so,
+each part holds the cells nearest to it, and two pieces of one shape that the first merge
+could not join (a dumbbell's bar in two, one piece a flat part beside a block) may now be
+explained by one superquadric: the merge runs again on them, and a part it makes is
+polished in turn (docs/shape.md, "A second merge").
 
 A part is reported only when it explains its cells: :data:`EXPLAINED_SHARE` of them within
 one cell width of its surface, :data:`SUPPORTED_SHARE` of its surface within
@@ -240,10 +243,14 @@ def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution
         pool = np.concatenate([g for g in _groups(cells, pool, resolution) if len(g) >= smallest]
                               or [np.zeros(0, dtype=np.intp)])
     parts = _merged(cells, w, _refit(cells, w, parts, resolution, smallest), resolution)
-    if measured is not None:
-        parts = _polished(cells, w, parts, resolution, 0.0, measured)
-    else:
-        parts = _polished(cells, w, parts, resolution, CELL_SLACK if slack is None else slack)
+    polish_slack = 0.0 if measured is not None else CELL_SLACK if slack is None else slack
+    parts = _polished(cells, w, parts, resolution, polish_slack, measured)
+    # Polished, each part holds the cells nearest to it: two pieces of one shape cut where
+    # the other hand held it (a dumbbell's bar) may show only now that one superquadric
+    # explains both.
+    merged = _merged(cells, w, parts, resolution)
+    if len(merged) < len(parts):
+        parts = _polished(cells, w, merged, resolution, polish_slack, measured)
     if not parts:
         return Decomposition([], everything, f'no superquadric explains the {len(cells)} occupied '
                              f'cells (at least {EXPLAINED_SHARE:.0%} on it): they look like '
