@@ -244,13 +244,14 @@ def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution
                               or [np.zeros(0, dtype=np.intp)])
     parts = _merged(cells, w, _refit(cells, w, parts, resolution, smallest), resolution)
     polish_slack = 0.0 if measured is not None else CELL_SLACK if slack is None else slack
-    parts = _polished(cells, w, parts, resolution, polish_slack, measured)
-    # Polished, each part holds the cells nearest to it: two pieces of one shape cut where
-    # the other hand held it (a dumbbell's bar) may show only now that one superquadric
-    # explains both.
-    merged = _merged(cells, w, parts, resolution)
-    if len(merged) < len(parts):
-        parts = _polished(cells, w, merged, resolution, polish_slack, measured)
+    if measured is not None or polish_slack > 0.0:
+        parts = _polished(cells, w, parts, resolution, polish_slack, measured)
+        # Polished, each part holds the cells nearest to it: two pieces of one shape cut
+        # where the other hand held it (a dumbbell's bar) may show only now that one
+        # superquadric explains both.
+        merged = _merged(cells, w, parts, resolution)
+        if len(merged) < len(parts):
+            parts = _polished(cells, w, merged, resolution, polish_slack, measured)
     if not parts:
         return Decomposition([], everything, f'no superquadric explains the {len(cells)} occupied '
                              f'cells (at least {EXPLAINED_SHARE:.0%} on it): they look like '
