@@ -270,6 +270,25 @@ def test_two_pieces_of_one_part_are_merged_once_the_parts_are_polished():
     assert np.abs(bar.superquadric.centre[0]) < 0.01 and bar.superquadric.size.max() > 0.03
 
 
+def test_points_of_weight_zero_count_for_nothing_and_all_of_them_is_refused():
+    """More cells than the fit draws from (800), most of them of weight 0 (strays a caller
+    has ruled out): the fit draws only among those that weigh and finds their sphere (a
+    numpy error before: fewer non-zero weights than the subset). All weights 0 is refused
+    with a clear message, by both fits."""
+    rng = np.random.default_rng(3)
+    sphere = Superquadric(np.full(3, 0.03), (1.0, 1.0), np.eye(3), CENTRE)
+    on = sphere.surface_samples(300, rng)
+    strays = CENTRE + rng.uniform(-0.1, 0.1, (700, 3))
+    points = np.concatenate([on, strays])
+    weights = np.concatenate([np.ones(300), np.zeros(700)])
+    for fit in (fit_superquadric, fit_least_squares):
+        found = fit(points, weights, resolution=RESOLUTION).superquadric
+        assert np.abs(found.size - sphere.size).max() < 0.001, fit.__name__
+        assert np.linalg.norm(found.centre - sphere.centre) < 0.001
+        with pytest.raises(ValueError, match='all 1000 points are 0'):
+            fit(points, np.zeros(1000), resolution=RESOLUTION)
+
+
 def test_the_surface_mesh_is_closed_where_the_cells_are_and_open_where_they_are_not():
     rng = np.random.default_rng(4)
     sphere = Superquadric(np.full(3, 0.04), (1.0, 1.0), np.eye(3), CENTRE)

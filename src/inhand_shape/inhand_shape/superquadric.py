@@ -395,11 +395,16 @@ def _rotation_matrix(rotvec: Floats) -> Matrix3:
 
 
 def _subset(points: Points, weights: Weights, limit: int) -> tuple[Points, Weights]:
-    """At most ``limit`` cells, drawn without replacement by weight (the same every run)."""
+    """At most ``limit`` cells, drawn without replacement by weight (the same every run);
+    a cell of weight 0 is never drawn, and where fewer than ``limit`` weigh anything, those
+    are the subset."""
     if len(points) <= limit:
         return points, weights
+    weighing = np.flatnonzero(weights > 0)
+    if len(weighing) <= limit:
+        return points[weighing], weights[weighing]
     rng = np.random.default_rng(0)
-    chosen = rng.choice(len(points), size=limit, replace=False, p=weights / weights.sum())
+    chosen = rng.choice(weighing, size=limit, replace=False, p=weights[weighing] / weights[weighing].sum())
     return points[chosen], np.ones(limit)
 
 
@@ -519,6 +524,8 @@ def _weights_of(points: Points, weights: ArrayLike | None) -> Weights:
     w = np.asarray(weights, dtype=float)
     if w.shape != (len(points),) or (w < 0).any() or not np.isfinite(w).all():
         raise ValueError(f'weights must be {len(points)} non-negative numbers')
+    if not (w > 0).any():
+        raise ValueError(f'the weights of all {len(points)} points are 0: no point counts in the fit')
     return w
 
 
