@@ -5,6 +5,7 @@ Run from the workspace root with the workspace's environment::
 
     .venv/bin/python test/benchmarks/bench_shape.py [--shapes NAME ...] [--modes static tracked]
                                                     [--keep DIR] [--duration S] [--stereo] [--centres-only]
+                                                    [--other-hand] [--hand NAME=VALUE ...]
 
 Each object of ``inhand_shape.known_shapes`` (single superquadrics from box-like to
 diamond-like at 3-15 cm, and two- and three-part objects) is meshed, explored by
@@ -40,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import io
 import sys
 import tempfile
@@ -99,11 +101,12 @@ def _axis_errors(fit, truth) -> tuple[float, float | None, float, float | None]:
 
 
 def session(name: str, static: bool, folder: Path, duration: float, seed: int = 7,
-            focus_on_handle: bool = True, stereo: bool = False):
+            focus_on_handle: bool = True, stereo: bool = False, hand: tuple[str, ...] = ()):
     """(map cells, true parts in the map frame, truth surface points in the map frame, the
     part of them the fingers touched: within ``TOUCHED_RADIUS`` of a true contact);
     ``stereo``: the session also has one stereo pair before the exploration, which
-    ``build_map`` fuses in with the shipped stereo configuration."""
+    ``build_map`` fuses in with the shipped stereo configuration; ``hand``: the simulator's
+    ``--hand NAME=VALUE`` settings of the exploring hand (its sessions kept apart)."""
     from inhand_common.ground_truth import in_frame, load_truth, pose_at
     from inhand_common.rotations import quaternion_to_matrix
     from inhand_shape.known_shapes import KNOWN_SHAPES, union_mesh
@@ -126,7 +129,9 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
         focus = ['--hand', 'focus_centre=' + ','.join(f'{v:.4f}' for v in part.centre),
                  '--hand', f'focus_radius={radius:.3f}'] + (['--hand', 'held_scale=0'] if static else [])
     tag = f'{name}_{"static" if static else "tracked"}_{seed}' + ('_free' if focus and static else '') \
-        + ('_stereo' if stereo else '')
+        + ('_stereo' if stereo else '') \
+        + (f'_hand{hashlib.sha1(" ".join(hand).encode()).hexdigest()[:8]}' if hand else '')
+    focus += [item for setting in hand for item in ('--hand', setting)]
     bag = folder / tag
     if not bag.exists():
         simulate(['--object', str(mesh_file), '--static' if static else '--moving', '--rate', '30',
@@ -151,16 +156,18 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
 
 
 def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
-            focus_on_handle: bool = True, stereo: bool = False, measured: bool = True) -> dict:
+            focus_on_handle: bool = True, stereo: bool = False, measured: bool = True,
+            hand: tuple[str, ...] = ()) -> dict:
     """One session's row; ``measured``: the fits take where in each cell the touches were
-    (the map's contact centroids; False: the cell centres alone, as before them)."""
+    (the map's contact centroids; False: the cell centres alone, as before them); ``hand``
+    as for :func:`session`."""
     from inhand_shape.known_shapes import KNOWN_SHAPES
     from inhand_shape.shape_extraction import extract_shape
     from inhand_shape.shape_parts import decompose
     from inhand_shape.superquadric import fit_least_squares, fit_superquadric
     rng = np.random.default_rng(0)
     cells, truth_parts, surface, explored = session(name, static, folder, duration, seed,
-                                                    focus_on_handle, stereo)
+                                                    focus_on_handle, stereo, hand)
     result = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
                            resolution=cells.lattice.resolution, origin=cells.lattice.origin,
                            surface_points=cells.contact_centroids if measured else None)
@@ -290,10 +297,20 @@ def main() -> int:
     parser.add_argument('--centres-only', action='store_true',
                         help='fit the cell centres alone, not where in each cell the touches '
                         'were (the map\'s contact centroids): the fit before them')
+    parser.add_argument('--hand', action='append', default=[], metavar='NAME=VALUE',
+                        help="the exploring hand's settings, as simulate_session --hand takes them")
+    parser.add_argument('--other-hand', action='store_true',
+                        help='the other hand of the validation-format sets (hand_sessions.py, '
+                        'hand b: 3-12 cm strokes, bell-shaped speeds, hovers at 2-6 mm, 0.5 mm '
+                        'of 10 Hz tremor, lifts of 1-4 cm up to 60 degrees oblique)')
     parser.add_argument('--seeds', type=int, nargs='+', default=[7, 8],
                         help='session seeds (7: the sessions the defaults were chosen on; '
                         'others to report)')
     args = parser.parse_args()
+    hand = tuple(args.hand)
+    if args.other_hand:
+        from hand_sessions import HAND_B
+        hand = HAND_B + hand
     with tempfile.TemporaryDirectory() as scratch:
         folder = args.keep or Path(scratch)
         folder.mkdir(parents=True, exist_ok=True)
@@ -306,7 +323,7 @@ def main() -> int:
             for name in args.shapes:
                 for mode in args.modes:
                     row = measure(name, mode == 'static', folder, args.duration, seed,
-                                  not args.no_focus, args.stereo, not args.centres_only)
+                                  not args.no_focus, args.stereo, not args.centres_only, hand)
                     _print_row(row)
                     rows.append(row)
     for seed in args.seeds:
