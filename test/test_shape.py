@@ -37,15 +37,19 @@ def _cells(sq: Superquadric, rng, keep=None, noise=0.001) -> np.ndarray:
     return (np.unique(np.floor(points / RESOLUTION).astype(int), axis=0) + 0.5) * RESOLUTION
 
 
-def _cells_and_means(sq: Superquadric, rng, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """The cells (centres) of ``count`` noisy surface samples on a 5 mm lattice, and the mean
-    of the samples in each: what a map's contact centroids are to its touches."""
-    samples = sq.surface_samples(count, rng) + rng.normal(0, 0.001, (count, 3))
+def _lattice_means(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cells (centres) the ``samples`` fall in on a 5 mm lattice, and the mean of the
+    samples in each: what a map's contact centroids are to its touches."""
     keys, owner, counts = np.unique(np.floor(samples / RESOLUTION).astype(int), axis=0,
                                     return_inverse=True, return_counts=True)
     means = np.zeros((len(keys), 3))
     np.add.at(means, owner.reshape(-1), samples)
     return (keys + 0.5) * RESOLUTION, means / counts[:, None]
+
+
+def _cells_and_means(sq: Superquadric, rng, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_lattice_means` of ``count`` surface samples of ``sq`` with 1 mm of noise."""
+    return _lattice_means(sq.surface_samples(count, rng) + rng.normal(0, 0.001, (count, 3)))
 
 
 def _chamfer(a: Superquadric, b: Superquadric, rng) -> float:
@@ -258,13 +262,8 @@ def test_two_pieces_of_one_part_are_merged_once_the_parts_are_polished():
     rng = np.random.default_rng(0)
     samples = area_samples(np.asarray(mesh.vertices), np.asarray(mesh.faces), 40_000, rng)
     samples = samples + rng.normal(0, 0.001, samples.shape)
-    samples = samples[samples[:, 2] > -0.02]
-    keys, owner, counts = np.unique(np.floor(samples / RESOLUTION).astype(int), axis=0,
-                                    return_inverse=True, return_counts=True)
-    means = np.zeros((len(keys), 3))
-    np.add.at(means, owner.reshape(-1), samples)
-    parts = decompose((keys + 0.5) * RESOLUTION, resolution=RESOLUTION,
-                      surface_points=means / counts[:, None]).parts
+    cells, means = _lattice_means(samples[samples[:, 2] > -0.02])
+    parts = decompose(cells, resolution=RESOLUTION, surface_points=means).parts
     assert len(parts) == 3
     bar = min(parts, key=lambda part: np.abs(part.superquadric.centre[0]))
     assert np.abs(bar.superquadric.centre[0]) < 0.01 and bar.superquadric.size.max() > 0.03

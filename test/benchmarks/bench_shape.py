@@ -131,12 +131,12 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
     tag = f'{name}_{"static" if static else "tracked"}_{seed}' + ('_free' if focus and static else '') \
         + ('_stereo' if stereo else '') \
         + (f'_hand{hashlib.sha1(" ".join(hand).encode()).hexdigest()[:8]}' if hand else '')
-    focus += [item for setting in hand for item in ('--hand', setting)]
+    hand_settings = focus + [item for setting in hand for item in ('--hand', setting)]
     bag = folder / tag
     if not bag.exists():
         simulate(['--object', str(mesh_file), '--static' if static else '--moving', '--rate', '30',
                   '--speed', '5', '--duration', str(duration), '--seed', str(seed), '--output',
-                  str(bag), '--quiet', *focus, *(['--stereo'] if stereo else [])])
+                  str(bag), '--quiet', *hand_settings, *(['--stereo'] if stereo else [])])
     configs = ['--config', str(CONFIG / ('mapping_static.yaml' if static else 'mapping.yaml'))]
     if stereo:
         configs += ['--config', str(CONFIG / 'stereo.yaml')]
@@ -151,8 +151,8 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
     else:
         turn, shift = np.eye(3), np.zeros(3)
     moved = [Superquadric(p.size, p.shape, turn @ p.rotation, turn @ p.centre + shift) for p in parts]
-    explored = truth.surface_points[explored_mask(truth.surface_points, truth.contacts, TOUCHED_RADIUS)]
-    return cells, moved, truth.surface_points, explored
+    touched = truth.surface_points[explored_mask(truth.surface_points, truth.contacts, TOUCHED_RADIUS)]
+    return cells, moved, truth.surface_points, touched
 
 
 def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
@@ -166,8 +166,8 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     from inhand_shape.shape_parts import decompose
     from inhand_shape.superquadric import fit_least_squares, fit_superquadric
     rng = np.random.default_rng(0)
-    cells, truth_parts, surface, explored = session(name, static, folder, duration, seed,
-                                                    focus_on_handle, stereo, hand)
+    cells, truth_parts, surface, touched = session(name, static, folder, duration, seed,
+                                                   focus_on_handle, stereo, hand)
     result = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
                            resolution=cells.lattice.resolution, origin=cells.lattice.origin,
                            surface_points=cells.contact_centroids if measured else None)
@@ -198,7 +198,7 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     # unseen, as for the map): the best the fit can do from what this session showed, so
     # that a gap to the dense fit splits into the fit's and the exploration's
     shown_rng = np.random.default_rng(2)     # its own draws: the other columns stay as they were
-    shown = explored[shown_rng.choice(len(explored), min(len(explored), 4000), replace=False)]
+    shown = touched[shown_rng.choice(len(touched), min(len(touched), 4000), replace=False)]
     shown_fit = decompose(shown, resolution=cells.lattice.resolution, slack=0.0) \
         if len(shown) >= 10 else None
     row['chamfer_shown'] = float('nan') if shown_fit is None or not shown_fit.parts else \
