@@ -4,7 +4,7 @@
 Run from the workspace root with the workspace's environment::
 
     .venv/bin/python test/benchmarks/bench_texture_sessions.py [--keep DIR] [--set tune|report|bundled|all]
-        [--map-view off|MIN,TOLERANCE,REACH[,AHEAD[,BLIND]]]
+        [--map-view off|MIN,TOLERANCE,REACH[,AHEAD[,BLIND]]] [--why]
 
 The map's texture (``inhand_stereo/texture.py``) is judged on what a user meets: a touch map
 of a hand that hovers, trembles and lifts at an angle (``simulate_session --hand ...``),
@@ -185,7 +185,7 @@ def camera_file(bag: Path, truth, folder: Path) -> Path:
     return path
 
 
-def scores(bag: Path, folder: Path) -> dict:
+def scores(bag: Path, folder: Path, explain: bool = False) -> dict:
     from scipy.spatial import cKDTree
 
     from inhand_common.ground_truth import in_frame, load_truth
@@ -216,10 +216,87 @@ def scores(bag: Path, folder: Path) -> dict:
     colour = colour_metrics(cells.centres, cells.probabilities, cells.lattice, cells.colours,
                             cells.textured, surface, truth.surface_colours, visible)
     unseen = int(np.count_nonzero(~seen))
-    return {'seen': int(seen.sum()), 'textured': int(np.count_nonzero(seen & textured)),
-            'unseen': unseen, 'unseen_textured': int(np.count_nonzero(textured & ~seen)),
-            'back': int(np.count_nonzero(textured & ~seen & (far > resolution))),
-            'colour': colour['colour_error_median'], 'p95': colour['colour_error_p95']}
+    result = {'seen': int(seen.sum()), 'textured': int(np.count_nonzero(seen & textured)),
+              'unseen': unseen, 'unseen_textured': int(np.count_nonzero(textured & ~seen)),
+              'back': int(np.count_nonzero(textured & ~seen & (far > resolution))),
+              'colour': colour['colour_error_median'], 'p95': colour['colour_error_p95']}
+    if explain:
+        result.update(_why_untextured(cells, occupied, seen, truth, surface, shot))
+    return result
+
+
+WHY_TOLERANCES = (0.001, 0.002, 0.003)   # m: the truth's visibility, tighter than a cell
+
+
+def _why_untextured(cells, occupied, seen, truth, surface, shot) -> dict:
+    """Where the seen cells left untextured are (``--why``), in counts that add up over a
+    set: those the map's own cells hide at their centre's pixel (another occupied cell more
+    than ``MapView.ahead`` nearer: what texture_cells' second rule reads), the visible true
+    surface samples in the untextured and in the textured seen cells, those of the
+    untextured cells' samples whose pixel has no stereo depth, and the seen cells and the
+    textured ones among them were the truth's visibility tighter (:data:`WHY_TOLERANCES`)
+    than its one cell."""
+    from inhand_common.cell_lattice import cell_indices
+    from inhand_stereo.texture import MAP_VIEW, depth_holes, project_cells
+    from inhand_stereo.texture_kernels import map_depth
+    from inhand_tools.map_quality import seen_cells
+    from inhand_tools.stereo_quality import principal_point, visible_samples
+    resolution = cells.lattice.resolution
+    centres, textured = cells.centres[occupied], cells.textured[occupied]
+    left = shot.placed.shot
+    camera = np.asarray(shot.config.camera_pose, dtype=float)
+    placed = (shot.placed.object_pose[:3], shot.placed.object_pose[3:])
+    pose = (camera[:3], camera[3:])
+
+    def pixels(points):
+        projection = project_cells(points, left.left_camera, left.rectifier.R_left, pose, placed)
+        height, width = left.depth.shape
+        column = np.clip(np.floor(projection.u + 0.5).astype(int), 0, width - 1)
+        row = np.clip(np.floor(projection.v + 0.5).astype(int), 0, height - 1)
+        return projection, row, column
+
+    projection, row, column = pixels(centres)
+    front = np.empty(left.depth.shape)
+    map_depth(projection.u, projection.v, projection.z,
+              np.asarray(left.left_camera.P, dtype=float), float(resolution), front)
+    left_out = seen & ~textured
+    hidden = front[row, column] < projection.z - MAP_VIEW.ahead * resolution
+    # each visible sample's cell, as an index into the occupied cells (-1: none)
+    keys = {tuple(k): n for n, k in enumerate(cell_indices(centres, cells.lattice))}
+    visible = visible_samples(truth, principal_point(shot), resolution)
+    points = truth.surface_points[visible]
+    owner = np.array([keys.get(tuple(k), -1) for k in cell_indices(points, cells.lattice)],
+                     dtype=int)
+    counts = np.bincount(owner[owner >= 0], minlength=len(centres))
+    mine = (owner >= 0) & left_out[np.maximum(owner, 0)]
+    _, sample_row, sample_column = pixels(points[mine])
+    measured = left.depth[sample_row, sample_column]
+    no_depth = ~(np.isfinite(measured) & (measured > 0))
+    holes = depth_holes(left.depth)[sample_row, sample_column]
+    result = {'left_out': int(left_out.sum()), 'left_hidden': int((left_out & hidden).sum()),
+              'left_samples': int(counts[left_out].sum()),
+              'textured_samples': int(counts[seen & textured].sum()),
+              'left_no_depth': int(no_depth.sum()), 'left_holes': int((no_depth & holes).sum())}
+    for tolerance in WHY_TOLERANCES:
+        tight = seen_cells(centres, cells.lattice, surface,
+                           visible_samples(truth, principal_point(shot), tolerance))
+        result[f'seen_{tolerance}'] = int(tight.sum())
+        result[f'textured_{tolerance}'] = int((tight & textured).sum())
+    return result
+
+
+def _why_line(total: dict) -> str:
+    """The ``--why`` summary of a set (the sums of :func:`_why_untextured`)."""
+    left = max(total['left_out'], 1)
+    tight = ', '.join(f"{1000 * t:.0f} mm {total[f'textured_{t}'] / max(total[f'seen_{t}'], 1):.3f}"
+                      for t in WHY_TOLERANCES)
+    return (f"  why: {total['left_out']} seen cells untextured; {total['left_hidden'] / left:.0%} "
+            f"of them hidden at their centre by the map's cells in front; visible samples per cell "
+            f"{total['left_samples'] / left:.1f} (textured seen cells "
+            f"{total['textured_samples'] / max(total['textured'], 1):.1f}); "
+            f"{total['left_no_depth'] / max(total['left_samples'], 1):.0%} of their samples' pixels "
+            f"without stereo depth ({total['left_holes'] / max(total['left_samples'], 1):.0%} "
+            f"in holes); textured share with the truth's visibility within {tight}")
 
 
 KEYS = ('seen', 'textured', 'unseen', 'back', 'unseen_textured')
@@ -252,6 +329,10 @@ def main() -> int:
                         help="texture_cells' second rule instead of its default (MapView): off, "
                         'or its min_samples, tolerance (cells), reach (px), ahead (cells) '
                         'and blind (on, off)')
+    parser.add_argument('--why', action='store_true',
+                        help='also where the seen cells left untextured are (hidden by the '
+                        "map's cells, without stereo depth, few visible samples) and the share "
+                        "with a tighter visibility of the truth")
     args = parser.parse_args()
     if args.map_view:
         from inhand_stereo.texture import MapView, texture_cells
@@ -282,16 +363,23 @@ def main() -> int:
                       'workspace)\n', flush=True)
                 continue
             total = np.zeros(5, dtype=np.int64)
+            reasons: dict = {}
             for name, bag in _sessions(set_name, folder):
                 started = time.monotonic()
-                result = scores(bag(), folder)
+                result = scores(bag(), folder, explain=args.why)
                 total += [result[key] for key in KEYS]
+                for key, value in result.items():
+                    if key not in KEYS and key not in ('colour', 'p95'):
+                        reasons[key] = reasons.get(key, 0) + value
                 print(f'{name:{width}s} {_row(result)}   ({time.monotonic() - started:.0f} s)',
                       flush=True)
             seen, textured, unseen, back, _ = total
             verdict = 'PASS' if textured / seen >= 0.85 and back / unseen <= 0.01 else 'FAIL'
             print(f'{set_name + " (all)":{width}s} {_row(dict(zip(KEYS, total)))}   targets >= '
-                  f'0.85 textured, <= 1 % back faces: {verdict}\n', flush=True)
+                  f'0.85 textured, <= 1 % back faces: {verdict}', flush=True)
+            if args.why:
+                print(_why_line({**reasons, 'textured': int(textured)}), flush=True)
+            print(flush=True)
     return 0
 
 
