@@ -221,21 +221,21 @@ def scores(bag: Path, folder: Path, explain: bool = False) -> dict:
               'back': int(np.count_nonzero(textured & ~seen & (far > resolution))),
               'colour': colour['colour_error_median'], 'p95': colour['colour_error_p95']}
     if explain:
-        result.update(_why_untextured(cells, occupied, seen, truth, surface, shot))
+        result.update(_why_untextured(cells, occupied, seen, visible, truth, surface, shot))
     return result
 
 
 WHY_TOLERANCES = (0.001, 0.002, 0.003)   # m: the truth's visibility, tighter than a cell
 
 
-def _why_untextured(cells, occupied, seen, truth, surface, shot) -> dict:
+def _why_untextured(cells, occupied, seen, visible, truth, surface, shot) -> dict:
     """Where the seen cells left untextured are (``--why``), in counts that add up over a
     set: those the map's own cells hide at their centre's pixel (another occupied cell more
     than ``MapView.ahead`` nearer: what texture_cells' second rule reads), the visible true
     surface samples in the untextured and in the textured seen cells, those of the
     untextured cells' samples whose pixel has no stereo depth, and the seen cells and the
     textured ones among them were the truth's visibility tighter (:data:`WHY_TOLERANCES`)
-    than its one cell."""
+    than its one cell (``visible``: the samples :func:`scores` counts as seen)."""
     from inhand_common.cell_lattice import cell_indices
     from inhand_stereo.texture import MAP_VIEW, depth_holes, project_cells
     from inhand_stereo.texture_kernels import map_depth
@@ -262,11 +262,14 @@ def _why_untextured(cells, occupied, seen, truth, surface, shot) -> dict:
     left_out = seen & ~textured
     hidden = front[row, column] < projection.z - MAP_VIEW.ahead * resolution
     # each visible sample's cell, as an index into the occupied cells (-1: none)
-    keys = {tuple(k): n for n, k in enumerate(cell_indices(centres, cells.lattice))}
-    visible = visible_samples(truth, principal_point(shot), resolution)
     points = truth.surface_points[visible]
-    owner = np.array([keys.get(tuple(k), -1) for k in cell_indices(points, cells.lattice)],
-                     dtype=int)
+    _, group = np.unique(np.vstack([cell_indices(centres, cells.lattice),
+                                    cell_indices(points, cells.lattice)]),
+                         axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    cell_of_group = np.full(group.max() + 1, -1)
+    cell_of_group[group[:len(centres)]] = np.arange(len(centres))
+    owner = cell_of_group[group[len(centres):]]
     counts = np.bincount(owner[owner >= 0], minlength=len(centres))
     mine = (owner >= 0) & left_out[np.maximum(owner, 0)]
     _, sample_row, sample_column = pixels(points[mine])
