@@ -162,15 +162,17 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     (the map's contact centroids; False: the cell centres alone, as before them); ``hand``
     as for :func:`session`."""
     from inhand_shape.known_shapes import KNOWN_SHAPES
-    from inhand_shape.shape_extraction import extract_shape
+    from inhand_shape.shape_extraction import extract_shape, support_normal
     from inhand_shape.shape_parts import decompose
     from inhand_shape.superquadric import fit_least_squares, fit_superquadric
     rng = np.random.default_rng(0)
     cells, truth_parts, surface, touched = session(name, static, folder, duration, seed,
                                                    focus_on_handle, stereo, hand)
+    # standing on the table (static: the tracker's frame): the parts may be held upright
+    up = support_normal('static' if static else 'tracked')
     result = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
                            resolution=cells.lattice.resolution, origin=cells.lattice.origin,
-                           surface_points=cells.contact_centroids if measured else None)
+                           surface_points=cells.contact_centroids if measured else None, up=up)
     found = [p.superquadric for p in result.decomposition.parts]
     truth_sample = surface[rng.choice(len(surface), min(len(surface), 6000), replace=False)]
     row = {'name': name, 'seed': seed, 'mode': 'static' if static else 'tracked', 'parts': len(found),
@@ -209,7 +211,7 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
         surface = cells.contact_centroids[occupied] if measured else None
         start = time.perf_counter()
         ours = fit_superquadric(points, weights, resolution=cells.lattice.resolution,
-                                surface_points=surface)
+                                surface_points=surface, up=up)
         row['one_s'] = time.perf_counter() - start
         # the classic fit on the same information: where the touches were, when ours has it
         classic = fit_least_squares(points if surface is None else surface, weights,

@@ -25,8 +25,8 @@ from inhand_shape.grasps import Grasp, antipodal_grasps, graspable_scores
 from inhand_shape.shape_parts import MAX_PARTS, Decomposition, decompose
 from inhand_shape.surface_mesh import SurfaceMesh, surface_mesh
 
-__all__ = ['DEFAULT_FRICTION', 'MESH_FORMATS', 'SHAPE_PARAMETERS', 'ShapeResult', 'extract_shape',
-           'shape_file_names', 'write_shape_files']
+__all__ = ['DEFAULT_FRICTION', 'MESH_FORMATS', 'MODE_ORIENTATION', 'SHAPE_PARAMETERS', 'ShapeResult',
+           'extract_shape', 'shape_file_names', 'support_normal', 'write_shape_files']
 
 DEFAULT_FRICTION = 0.5     # a fingertip on wood or plastic
 MESH_FORMATS = ('ply', 'obj', 'stl')
@@ -85,16 +85,32 @@ class ShapeResult:
                 'seconds': {k: round(v, 3) for k, v in self.seconds.items()}}
 
 
+# (up, on_support) of a map by the graph's registration mode: a static object stands on a
+# support below it, in the tracker frame (z down); a tracked one is held, its own +z up.
+MODE_ORIENTATION = {'static': ((0.0, 0.0, -1.0), True), 'tracked': ((0.0, 0.0, 1.0), False)}
+
+
+def support_normal(mode: str | None) -> tuple[float, float, float] | None:
+    """The normal of the support a map's object stands on, by the graph's registration
+    ``mode`` (``MODE_ORIENTATION``): the tracker's -z for a static map; None for a held one
+    or an unknown mode."""
+    up, on_support = MODE_ORIENTATION.get(mode or '', ((0.0, 0.0, 1.0), False))
+    return up if on_support else None
+
+
 def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
                   first_touch: ArrayLike, *, resolution: float, origin: ArrayLike = (0, 0, 0),
                   threshold: float = 0.8, friction: float = DEFAULT_FRICTION,
                   max_parts: int = MAX_PARTS, frame_id: str = 'object',
-                  surface_points: ArrayLike | None = None) -> ShapeResult:
+                  surface_points: ArrayLike | None = None,
+                  up: ArrayLike | None = None) -> ShapeResult:
     """The shape of the map whose cells are given (centres (N, 3) m, probabilities, hits,
     first-touch times; any cells, those at or above ``threshold`` are used).
     ``surface_points`` (N, 3) m: where in each cell the surface was measured (the map's
     contact centroids); the surface mesh's tangent planes pass there (surface_mesh) and the
-    parts' last fit takes them (shape_parts.decompose)."""
+    parts' last fit takes them (shape_parts.decompose). ``up`` (3,): the object stands on a
+    support whose normal this is (a static map): the parts may be held upright
+    (superquadric.fit_superquadric)."""
     if not 0 < threshold < 1:
         raise ValueError(f'threshold {threshold}: must be in (0, 1)')
     if not friction >= 0:
@@ -110,7 +126,7 @@ def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
     seconds['mesh'] = time.perf_counter() - start
     start = time.perf_counter()
     parts = decompose(cells, p[keep], resolution=resolution, max_parts=max_parts,
-                      surface_points=measured)
+                      surface_points=measured, up=up)
     seconds['parts'] = time.perf_counter() - start
     scores = graspable_scores(parts.parts, np.asarray(hits)[keep], np.asarray(first_touch)[keep])
     graspable = int(np.argmax(scores)) if len(parts.parts) else None

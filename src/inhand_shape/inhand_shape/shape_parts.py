@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage  # type: ignore[import-untyped]
 
-from inhand_common.array_types import Points, Weights
+from inhand_common.array_types import Points, Vector3, Weights
 from inhand_common.cell_lattice import Lattice, cell_indices
 from inhand_shape.superquadric import CELL_SLACK, REACH_WEIGHT, FitResult, Superquadric, fit_superquadric
 
@@ -125,11 +125,12 @@ def _sheet_reason(points: Points, resolution: float) -> str | None:
 
 def _fit_part(points: Points, weights: Weights, members: NDArray[np.intp], resolution: float,
               start: Superquadric | None = None, reach: float = REACH_WEIGHT, slack: float = 0.0,
-              alternatives: bool = False) -> tuple[Part | None, FitResult]:
+              alternatives: bool = False, up: Vector3 | None = None) -> tuple[Part | None, FitResult]:
     """The part fitted to ``members`` (None when it does not explain them), and the fit;
-    ``start``, ``reach``, ``slack`` and ``alternatives`` as for :func:`fit_superquadric`."""
+    ``start``, ``reach``, ``slack``, ``alternatives`` and ``up`` as for
+    :func:`fit_superquadric`."""
     fit = fit_superquadric(points[members], weights[members], resolution=resolution, start=start,
-                           reach=reach, slack=slack, alternatives=alternatives)
+                           reach=reach, slack=slack, alternatives=alternatives, up=up)
     # only the cells on the surface vouch for it: a shape large enough to hold every cell
     # explains nothing
     surface = fit.distances <= resolution     # on_surface of the cells it was fitted to
@@ -200,14 +201,18 @@ def _next_part(points: Points, weights: Weights, pool: NDArray[np.intp], resolut
 
 def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution: float = 0.005,
               max_parts: int = MAX_PARTS, slack: float | None = None,
-              surface_points: ArrayLike | None = None) -> Decomposition:
+              surface_points: ArrayLike | None = None, up: ArrayLike | None = None) -> Decomposition:
     """The parts of the cells at ``points`` (N, 3) m weighted by ``weights`` (occupancy
     probabilities), as the module doc describes; ``max_parts`` = 1 fits one superquadric;
     ``slack`` as for :func:`fit_superquadric` (0 for points on the surface), used by the
     final fit of each part. ``surface_points`` (N, 3) m: where in each cell the surface was
     measured (the map's contact centroids, the cell's centre where it has none); the final
-    fit of each part then takes them, as points on the surface (no slack)."""
+    fit of each part then takes them, as points on the surface (no slack). ``up`` (3,): the
+    object stands on a support whose normal this is (a static map): the final fit of each
+    part may hold it upright (:func:`fit_superquadric`; the search stays free, so that a
+    shape resting on a face keeps the pose its cells show)."""
     cells = np.asarray(points, dtype=float).reshape(-1, 3)
+    held = None if up is None else np.asarray(up, dtype=float).reshape(3)
     measured = None
     if surface_points is not None:
         measured = np.asarray(surface_points, dtype=float).reshape(-1, 3)
@@ -245,13 +250,13 @@ def decompose(points: ArrayLike, weights: ArrayLike | None = None, *, resolution
     parts = _merged(cells, w, _refit(cells, w, parts, resolution, smallest), resolution)
     polish_slack = 0.0 if measured is not None else CELL_SLACK if slack is None else slack
     if measured is not None or polish_slack > 0.0:
-        parts = _polished(cells, w, parts, resolution, polish_slack, measured)
+        parts = _polished(cells, w, parts, resolution, polish_slack, measured, held)
         # Polished, each part holds the cells nearest to it: two pieces of one shape cut
         # where the other hand held it (a dumbbell's bar) may show only now that one
         # superquadric explains both.
         merged = _merged(cells, w, parts, resolution)
         if len(merged) < len(parts):
-            parts = _polished(cells, w, merged, resolution, polish_slack, measured)
+            parts = _polished(cells, w, merged, resolution, polish_slack, measured, held)
     if not parts:
         return Decomposition([], everything, f'no superquadric explains the {len(cells)} occupied '
                              f'cells (at least {EXPLAINED_SHARE:.0%} on it): they look like '
@@ -288,11 +293,11 @@ def _owners(points: Points, parts: list[Part]) -> NDArray[np.intp]:
 
 
 def _polished(points: Points, weights: Weights, parts: list[Part], resolution: float,
-              slack: float, measured: Points | None = None) -> list[Part]:
+              slack: float, measured: Points | None = None, up: Vector3 | None = None) -> list[Part]:
     """Each part fitted once more to the cells nearest to it, from where it is, with the
     cells' ``slack`` (:func:`fit_superquadric`), or to where in them the surface was
     ``measured`` (then points on the surface); the part as it was where that fit does not
-    explain its cells."""
+    explain its cells (``up`` as for :func:`fit_superquadric`)."""
     if (slack <= 0.0 and measured is None) or not parts:
         return parts
     owner = _owners(points, parts)
@@ -303,7 +308,7 @@ def _polished(points: Points, weights: Weights, parts: list[Part], resolution: f
         if len(members) >= MIN_PART_CELLS:
             better, _ = _fit_part(points if measured is None else measured, weights, members,
                                   resolution, part.superquadric, slack=slack,
-                                  alternatives=measured is not None)
+                                  alternatives=measured is not None, up=up)
         polished.append(part if better is None else better)
     return sorted(polished, key=lambda p: len(p.cells), reverse=True)
 

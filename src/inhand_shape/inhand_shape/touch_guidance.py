@@ -27,7 +27,7 @@ from inhand_shape.implicit_surface import (
     predict_map_surface,
 )
 from inhand_shape.next_touch import DEFAULT_SUGGESTIONS, Suggestion, next_touches
-from inhand_shape.shape_extraction import mesh_bytes, yaml_document
+from inhand_shape.shape_extraction import MODE_ORIENTATION, mesh_bytes, yaml_document
 
 __all__ = [
     'EXPLORATION_NODE_PARAMETERS',
@@ -78,10 +78,6 @@ EXPLORATION_NODE_PARAMETERS = (
               read_only=False),
 ) + GUIDANCE_PARAMETERS
 
-
-# (up, on_support) of a map by the graph's registration mode: a static object stands on a
-# support below it, in the tracker frame (z down); a tracked one is held, its own +z up.
-MODE_ORIENTATION = {'static': ((0.0, 0.0, -1.0), True), 'tracked': ((0.0, 0.0, 1.0), False)}
 
 
 def prediction_settings(parameters: dict[str, Any]) -> PredictionSettings:

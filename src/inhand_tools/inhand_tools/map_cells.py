@@ -60,6 +60,13 @@ class MapCells:
     def has_colours(self) -> bool:
         return self.colours is not None and self.textured is not None
 
+    @property
+    def registration_mode(self) -> str | None:
+        """The graph's registration mode the map was made in ('static', 'tracked'), as
+        build_map and occupancy_node record it; None for a map that does not say."""
+        mode = ((self.metadata or {}).get('extra') or {}).get('registration_mode')
+        return str(mode) if mode is not None else None
+
     def describe(self) -> str:
         which = 'every touched cell' if self.complete else 'only the cells it was saved with'
         return (f'{self.source}: {len(self.centres)} cells ({which}), cell '

@@ -59,8 +59,7 @@ def cells_panel(camera: Camera, cells: MapCells, occupied: np.ndarray, draw, tit
 def map_up(cells: MapCells) -> str:
     """The map's up axis in pictures: -z for a map registered in static mode (build_map
     records it: the frame is the tracker's, whose z points down), else by its frame."""
-    extra = (cells.metadata or {}).get('extra') or {}
-    return '-z' if extra.get('registration_mode') == 'static' else default_up(cells.frame_id)
+    return '-z' if cells.registration_mode == 'static' else default_up(cells.frame_id)
 
 
 def shape_figure(cells: MapCells, result: ShapeResult, title: str, threshold: float = 0.8,

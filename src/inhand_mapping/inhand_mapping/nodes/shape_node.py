@@ -17,7 +17,9 @@ on the latest map and publishes, reliable and transient-local, in the map's fram
 The answer is the one-line summary (parts, graspable part, grasps, holes) and how many cells
 the registered positions placed; ``success`` is
 false when there is no map yet or no part explains the cells (the message says why).
-Parameters: friction, max_parts, occupied_threshold (the ``shape_node`` section).
+Parameters: friction, max_parts, occupied_threshold (the ``shape_node`` section). The graph's
+mode comes from the registration node (graph_mode.py): in static mode the object stands on a
+support, and its parts may be held upright on it (docs/shape.md, "Upright on a support").
 """
 
 from __future__ import annotations
@@ -39,9 +41,10 @@ from inhand_common.point_cloud import from_point_cloud2
 from inhand_common.ros_matches import logged_subscription_matches
 from inhand_common.ros_parameters import declare_parameters
 from inhand_mapping.cloud_layouts import unpack_registered
+from inhand_mapping.graph_mode import GraphModeQuery
 from inhand_mapping.qos import DATA_QOS, LATCHED_QOS
 from inhand_shape.shape_display import DisplayItem, part_items, surface_item
-from inhand_shape.shape_extraction import SHAPE_PARAMETERS, extract_shape
+from inhand_shape.shape_extraction import SHAPE_PARAMETERS, extract_shape, support_normal
 
 KEPT_POSITIONS = 3_000_000   # 36 MB: 70 min of three fingers at 240 Hz
 MARKER_TYPES = {'triangles': Marker.TRIANGLE_LIST, 'lines': Marker.LINE_LIST, 'points': Marker.POINTS}
@@ -69,6 +72,8 @@ class ShapeNode(Node):
         self.parameters = declare_parameters(self, SHAPE_PARAMETERS)
         self._cells = None
         self._frame_id = 'object'
+        self._mode: str | None = None
+        self._graph_mode = GraphModeQuery(self, self._on_graph_mode)
         self.create_subscription(PointCloud2, 'occupancy/occupied', self._on_map, LATCHED_QOS)
         self._positions = RecentPositions(KEPT_POSITIONS)
         self.create_subscription(
@@ -80,6 +85,10 @@ class ShapeNode(Node):
         self.get_logger().info(
             f"ready: shape/extract on the latest occupancy/occupied (friction "
             f"{self.parameters['friction']:g}, at most {self.parameters['max_parts']} parts)")
+
+    def _on_graph_mode(self, mode: str, node: str) -> None:
+        self._mode = mode
+        self.get_logger().info(f'the graph is in {mode} mode (from {node})')
 
     def _on_map(self, msg: PointCloud2) -> None:
         self._cells = from_point_cloud2(msg)
@@ -115,7 +124,8 @@ class ShapeNode(Node):
                                max_parts=self.parameters['max_parts'], frame_id=self._frame_id,
                                # none placed (the node started after the touches): the
                                # cells with their slack, not their centres as points
-                               surface_points=centroids(centres, sums, counts) if counts.any() else None)
+                               surface_points=centroids(centres, sums, counts) if counts.any() else None,
+                               up=support_normal(self._mode))
         stamp = self.get_clock().now().to_msg()
         array = MarkerArray()
         clear = Marker()

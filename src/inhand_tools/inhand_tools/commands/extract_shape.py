@@ -13,7 +13,9 @@ Reads a map (NPZ from occupancy/save or build_map, or its PLY) and writes beside
   grasps drawn (like the paper's Fig. 1).
 
 Parameters come from the ``shape_node`` section of ``--config`` files (friction, max_parts,
-occupied_threshold), then ``--set NAME=VALUE``. A map with no occupied cells, only
+occupied_threshold), then ``--set NAME=VALUE``. A map made in static mode (build_map and
+occupancy_node record the graph's mode) stands on a support: its parts may be held upright
+on it (docs/shape.md, "Upright on a support"). A map with no occupied cells, only
 scattered strays or cells in one plane gets one line saying why, and no part is invented
 (exit code 0: the files still say so). Exit code 2 for a file that is not a map or a bad
 parameter.
@@ -27,7 +29,12 @@ from pathlib import Path
 import cv2
 
 from inhand_common.parameters import ParameterError
-from inhand_shape.shape_extraction import SHAPE_PARAMETERS, extract_shape, write_shape_files
+from inhand_shape.shape_extraction import (
+    SHAPE_PARAMETERS,
+    extract_shape,
+    support_normal,
+    write_shape_files,
+)
 from inhand_tools.map_cells import load_map
 from inhand_tools.map_command import map_command_parser, output_of, print_report, section_parameters
 from inhand_tools.shape_figure import shape_figure
@@ -57,7 +64,8 @@ def write_shape_of_map(map_path: Path, output: Path, name: str, parameters: dict
                            resolution=cells.lattice.resolution, origin=cells.lattice.origin,
                            threshold=parameters['occupied_threshold'],
                            friction=parameters['friction'], max_parts=parameters['max_parts'],
-                           frame_id=cells.frame_id, surface_points=cells.contact_centroids)
+                           frame_id=cells.frame_id, surface_points=cells.contact_centroids,
+                           up=support_normal(cells.registration_mode))
     figure = shape_figure(cells, result, f'{name}: shape of the map',
                           parameters['occupied_threshold'], up=up)
     ok, png = cv2.imencode('.png', figure)

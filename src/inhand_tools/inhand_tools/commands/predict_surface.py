@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     output, name = output_of(args)
     up_axis = args.up or map_up(cells)
     # build_map records the registration mode: a static object stands on a support
-    mode = args.mode or ((cells.metadata or {}).get('extra') or {}).get('registration_mode')
+    mode = args.mode or cells.registration_mode
     seen = None
     if args.bag is not None:
         try:
