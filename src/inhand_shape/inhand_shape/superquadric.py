@@ -415,9 +415,7 @@ def _upright_base(base: Matrix3, up: Vector3) -> tuple[Matrix3, int]:
     k = int(np.argmax(np.abs(up @ base)))
     axis = up * (1.0 if float(up @ base[:, k]) >= 0 else -1.0)
     i, j = (k + 1) % 3, (k + 2) % 3
-    first = base[:, i] - float(axis @ base[:, i]) * axis
-    if np.linalg.norm(first) < 1e-9:
-        first = np.cross(axis, base[:, j])
+    first = base[:, i] - float(axis @ base[:, i]) * axis   # never 0: axis k is the nearest
     first = first / np.linalg.norm(first)
     turned = np.empty((3, 3))
     turned[:, k], turned[:, i], turned[:, j] = axis, first, np.cross(axis, first)
@@ -627,17 +625,17 @@ def fit_superquadric(points: ArrayLike, weights: ArrayLike | None = None, *,
     whose normal this is (a static map): the same fit is also made with the shape held
     upright, one axis along ``up``, and taken when it explains the cells nearly as well
     (module doc, "Upright on a support"). ValueError for fewer than 10 points."""
+    axis = None
+    if up is not None:      # refused before any fit is made
+        axis = np.asarray(up, dtype=float).reshape(3)
+        if not np.linalg.norm(axis) > 0:
+            raise ValueError(f'up {list(axis)}: must be a nonzero vector')
+        axis = axis / np.linalg.norm(axis)
     fit = functools.partial(_fit_any, points, weights, resolution=resolution,
                             outlier_ratio=outlier_ratio, start=start, reach=reach, slack=slack,
                             surface_points=surface_points, alternatives=alternatives)
     found = fit()
-    if up is None:
-        return found
-    axis = np.asarray(up, dtype=float).reshape(3)
-    if not np.linalg.norm(axis) > 0:
-        raise ValueError(f'up {list(axis)}: must be a nonzero vector')
-    axis = axis / np.linalg.norm(axis)
-    if _tilt(found.superquadric, axis) <= UPRIGHT_TOLERANCE:
+    if axis is None or _tilt(found.superquadric, axis) <= UPRIGHT_TOLERANCE:
         return found
     upright = fit(about=axis)
     lost = (found.log_likelihood - upright.log_likelihood) / len(found.inlier)
