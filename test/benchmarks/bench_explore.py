@@ -257,19 +257,23 @@ def validation_check(folder: Path) -> None:
 def compare(folders: list[Path], specs: list[str]) -> None:
     """Alternative prediction settings side by side on the maps kept in ``folders`` (by
     ``--keep``): each spec is NAME=VALUE pairs joined by commas (PredictionSettings fields, or
-    an upper-case constant of implicit_surface.py); the prior is fitted once per map."""
+    an upper-case constant of implicit_surface.py); each kind of prior is fitted once per map.
+    Besides the completed surface over all the maps, the issue's figure: at 20 strokes, the
+    completed surface's F minus the map's."""
     import inhand_shape.implicit_surface as implicit
     from inhand_tools.map_cells import load_map
     from inhand_tools.map_quality import SurfaceTruth, point_metrics
-    maps = []
+    maps, strokes = [], []
     for folder in folders:
         for path in sorted(folder.glob('*_[0-9]*_[0-9]*.npz')):
-            tag = path.stem.rsplit('_', 1)[0]
+            tag, count = path.stem.rsplit('_', 1)
             truth = _truth_in_map_frame(folder / f'{tag}.truth.npz', '_static_' in tag)
             maps.append((load_map(path), SurfaceTruth(truth.surface_points, truth.surface_points)))
+            strokes.append(int(count))
     print(f'# {len(maps)} maps from {", ".join(map(str, folders))}')
-    priors = [implicit.predict_map_surface(c.centres, c.probabilities, c.lattice.resolution).prior
-              for c, _ in maps]
+    map_f = [point_metrics(c.centres[c.probabilities >= 0.8], whole)['fscore_at_5mm']
+             for c, whole in maps]
+    priors: dict[str, list] = {}      # kind -> the fitted prior of each map
     defaults = {name: getattr(implicit, name) for name in dir(implicit) if name.isupper()}
     rng = np.random.default_rng(0)
     for spec in specs:
@@ -279,10 +283,14 @@ def compare(folders: list[Path], specs: list[str]) -> None:
         settings = implicit.PredictionSettings(**{k: v if k == 'prior' else float(v)
                                                   for k, v in pairs.items()})
         scores, within, within_one, spread = [], [], [], []
-        for (cells, whole), prior in zip(maps, priors):
+        if settings.prior not in priors:
+            kind = implicit.PredictionSettings(prior=settings.prior)
+            priors[settings.prior] = [implicit.predict_map_surface(
+                c.centres, c.probabilities, c.lattice.resolution, kind).prior for c, _ in maps]
+        for (cells, whole), prior in zip(maps, priors[settings.prior]):
             surface = implicit.predict_map_surface(
                 cells.centres, cells.probabilities, cells.lattice.resolution, settings,
-                prior=prior if settings.prior == 'superquadric' else None)
+                prior=prior)
             samples = area_samples(surface.vertices, surface.faces, 10000, rng)
             scores.append(point_metrics(samples, whole)['fscore_at_5mm'])
             error, _ = whole.distance(surface.vertices)
@@ -295,6 +303,11 @@ def compare(folders: list[Path], specs: list[str]) -> None:
               f'within 2 sigma worst {min(within):.2f}, >= 0.9 on {sum(w >= 0.9 for w in within)}/'
               f'{len(within)}; within 1 sigma median {np.median(within_one):.2f}, mean std '
               f'{1000 * np.median(spread):.1f} mm', flush=True)
+        gains = [score - f for score, f, count in zip(scores, map_f, strokes) if count == 20]
+        if gains:
+            print(f'{"":45} at 20 strokes: completed - map F mean {np.mean(gains):+.3f}, worst '
+                  f'{min(gains):+.3f}, >= +0.10 on {sum(g >= 0.10 for g in gains)}/{len(gains)}',
+                  flush=True)
     for name, value in defaults.items():
         setattr(implicit, name, value)
 
