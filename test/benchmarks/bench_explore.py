@@ -278,16 +278,19 @@ def compare(folders: list[Path], specs: list[str]) -> None:
     rng = np.random.default_rng(0)
     for spec in specs:
         pairs = dict(item.split('=', 1) for item in spec.split(',') if item)
+        kind = pairs.get('prior', implicit.PredictionSettings().prior)
+        if kind not in priors:      # fitted with the module's own constants
+            for name, value in defaults.items():
+                setattr(implicit, name, value)
+            priors[kind] = [implicit.predict_map_surface(
+                c.centres, c.probabilities, c.lattice.resolution,
+                implicit.PredictionSettings(prior=kind)).prior for c, _ in maps]
         for name, value in defaults.items():
             setattr(implicit, name, type(value)(float(pairs.pop(name))) if name in pairs else value)
         settings = implicit.PredictionSettings(**{k: v if k == 'prior' else float(v)
                                                   for k, v in pairs.items()})
         scores, within, within_one, spread = [], [], [], []
-        if settings.prior not in priors:
-            kind = implicit.PredictionSettings(prior=settings.prior)
-            priors[settings.prior] = [implicit.predict_map_surface(
-                c.centres, c.probabilities, c.lattice.resolution, kind).prior for c, _ in maps]
-        for (cells, whole), prior in zip(maps, priors[settings.prior]):
+        for (cells, whole), prior in zip(maps, priors[kind]):
             surface = implicit.predict_map_surface(
                 cells.centres, cells.probabilities, cells.lattice.resolution, settings,
                 prior=prior)
