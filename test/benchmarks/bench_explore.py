@@ -61,6 +61,12 @@ CONFIG = WORKSPACE / 'config'
 TARGET_F = 0.8
 
 
+def _map_f(centres: np.ndarray, probabilities: np.ndarray, whole) -> float:
+    """F@5mm of the map's occupied cells (p >= 0.8) against ``whole`` (a SurfaceTruth)."""
+    from inhand_tools.map_quality import point_metrics
+    return float(point_metrics(centres[probabilities >= 0.8], whole)['fscore_at_5mm'])
+
+
 def _truth_in_map_frame(truth_path: Path, static: bool):
     from inhand_common.ground_truth import in_frame, load_truth
     truth = load_truth(truth_path)
@@ -105,10 +111,9 @@ def run_session(job: tuple) -> list[dict]:
             build_map([str(bag), '--config', str(config), '--output-dir', str(folder), '--quiet',
                        '--force'])
         cells = load_map(Path(folder) / f'{bag.name}.npz')
-        occupied = cells.centres[cells.probabilities >= 0.8]
         row = {'object': name, 'mode': 'static' if static else 'tracked', 'explorer': explorer,
                'seed': seed, 'strokes': count, 'seconds': float(ends[count - 1]),
-               'map_f': point_metrics(occupied, whole)['fscore_at_5mm'], 'simulate_s': simulate_s}
+               'map_f': _map_f(cells.centres, cells.probabilities, whole), 'simulate_s': simulate_s}
         start = time.perf_counter()
         surface = predict_map_surface(cells.centres, cells.probabilities, cells.lattice.resolution)
         row['predict_ms'] = 1000 * (time.perf_counter() - start)
@@ -239,7 +244,7 @@ def validation_check(folder: Path) -> None:
             build_map([str(bag), '--config', str(config), '--output-dir', str(folder), '--quiet', '--force'])
         cells = load_map(Path(folder) / f'{bag.name}.npz')
         whole = SurfaceTruth(truth.surface_points, truth.surface_points)
-        map_f = point_metrics(cells.centres[cells.probabilities >= 0.8], whole)['fscore_at_5mm']
+        map_f = _map_f(cells.centres, cells.probabilities, whole)
         surface = predict_map_surface(cells.centres, cells.probabilities, cells.lattice.resolution)
         samples = area_samples(surface.vertices, surface.faces, 20000, rng)
         completed_f = point_metrics(samples, whole)['fscore_at_5mm']
@@ -271,17 +276,20 @@ def compare(folders: list[Path], specs: list[str]) -> None:
             maps.append((load_map(path), SurfaceTruth(truth.surface_points, truth.surface_points)))
             strokes.append(int(count))
     print(f'# {len(maps)} maps from {", ".join(map(str, folders))}')
-    map_f = [point_metrics(c.centres[c.probabilities >= 0.8], whole)['fscore_at_5mm']
-             for c, whole in maps]
+    twenty = {i: _map_f(c.centres, c.probabilities, whole)      # the 20-stroke maps' own F
+              for i, ((c, whole), count) in enumerate(zip(maps, strokes)) if count == 20}
     priors: dict[str, list] = {}      # kind -> the fitted prior of each map
     defaults = {name: getattr(implicit, name) for name in dir(implicit) if name.isupper()}
+
+    def restore() -> None:
+        for name, value in defaults.items():
+            setattr(implicit, name, value)
     rng = np.random.default_rng(0)
     for spec in specs:
         pairs = dict(item.split('=', 1) for item in spec.split(',') if item)
         kind = pairs.get('prior', implicit.PredictionSettings().prior)
         if kind not in priors:      # fitted with the module's own constants
-            for name, value in defaults.items():
-                setattr(implicit, name, value)
+            restore()
             priors[kind] = [implicit.predict_map_surface(
                 c.centres, c.probabilities, c.lattice.resolution,
                 implicit.PredictionSettings(prior=kind)).prior for c, _ in maps]
@@ -306,13 +314,12 @@ def compare(folders: list[Path], specs: list[str]) -> None:
               f'within 2 sigma worst {min(within):.2f}, >= 0.9 on {sum(w >= 0.9 for w in within)}/'
               f'{len(within)}; within 1 sigma median {np.median(within_one):.2f}, mean std '
               f'{1000 * np.median(spread):.1f} mm', flush=True)
-        gains = [score - f for score, f, count in zip(scores, map_f, strokes) if count == 20]
+        gains = [scores[i] - f for i, f in twenty.items()]
         if gains:
             print(f'{"":45} at 20 strokes: completed - map F mean {np.mean(gains):+.3f}, worst '
                   f'{min(gains):+.3f}, >= +0.10 on {sum(g >= 0.10 for g in gains)}/{len(gains)}',
                   flush=True)
-    for name, value in defaults.items():
-        setattr(implicit, name, value)
+    restore()
 
 
 CAMERA_CUTS = (15.0, 30.0, 60.0, math.inf)   # s of exploration the touch map is cut after
@@ -354,7 +361,7 @@ def camera_check(folder: Path) -> None:
                         grid.integrate(points[keep], times[keep], fingers[keep])
                 grid.flush()
                 centres, probabilities, _, _ = grid.cells()
-                map_f = point_metrics(centres[probabilities >= 0.8], whole)['fscore_at_5mm']
+                map_f = _map_f(centres, probabilities, whole)
                 completed = []
                 for camera in (None, seen):
                     surface = predict_map_surface(
