@@ -26,7 +26,8 @@ from inhand_shape.shape_parts import MAX_PARTS, Decomposition, decompose
 from inhand_shape.surface_mesh import SurfaceMesh, surface_mesh
 
 __all__ = ['DEFAULT_FRICTION', 'MESH_FORMATS', 'MODE_ORIENTATION', 'SHAPE_PARAMETERS', 'ShapeResult',
-           'extract_shape', 'shape_file_names', 'support_normal', 'write_shape_files']
+           'extract_shape', 'mode_orientation', 'shape_file_names', 'support_normal',
+           'write_shape_files']
 
 DEFAULT_FRICTION = 0.5     # a fingertip on wood or plastic
 MESH_FORMATS = ('ply', 'obj', 'stl')
@@ -90,11 +91,17 @@ class ShapeResult:
 MODE_ORIENTATION = {'static': ((0.0, 0.0, -1.0), True), 'tracked': ((0.0, 0.0, 1.0), False)}
 
 
+def mode_orientation(mode: str | None) -> tuple[tuple[float, float, float], bool]:
+    """(up, on_support) of a map by the graph's registration ``mode``
+    (``MODE_ORIENTATION``); an unknown mode (None: not known yet) as a held object's."""
+    return MODE_ORIENTATION.get(mode or '', MODE_ORIENTATION['tracked'])
+
+
 def support_normal(mode: str | None) -> tuple[float, float, float] | None:
     """The normal of the support a map's object stands on, by the graph's registration
-    ``mode`` (``MODE_ORIENTATION``): the tracker's -z for a static map; None for a held one
-    or an unknown mode."""
-    up, on_support = MODE_ORIENTATION.get(mode or '', ((0.0, 0.0, 1.0), False))
+    ``mode`` (:func:`mode_orientation`): the tracker's -z for a static map; None for a held
+    one or an unknown mode."""
+    up, on_support = mode_orientation(mode)
     return up if on_support else None
 
 

@@ -53,9 +53,9 @@ from inhand_mapping.cloud_layouts import seen_points
 from inhand_mapping.graph_mode import GraphModeQuery
 from inhand_mapping.qos import LATCHED_QOS
 from inhand_shape.implicit_surface import SurfacePrior
+from inhand_shape.shape_extraction import mode_orientation
 from inhand_shape.touch_guidance import (
     EXPLORATION_NODE_PARAMETERS,
-    MODE_ORIENTATION,
     Guidance,
     guide,
     std_colours,
@@ -149,7 +149,7 @@ class ExplorationNode(Node):
         occupied = int(np.count_nonzero(cells['intensity'] >= self.parameters['occupied_threshold']))
         if self._prior is not None and occupied > REFIT_GROWTH * self._prior_cells:
             self._prior = None
-        up, on_support = MODE_ORIENTATION.get(mode, ((0.0, 0.0, 1.0), False))
+        up, on_support = mode_orientation(mode)
         started = time.monotonic()
         guidance = guide(centres, cells['intensity'], lattice.resolution, self.parameters,
                          up=up, on_support=on_support, frame_id=frame_id, prior=self._prior,
