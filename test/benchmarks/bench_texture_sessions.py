@@ -16,6 +16,9 @@ then the map's cells against the truth, as ``map_metrics`` scores them:
 * *seen cells*: occupied cells (p > 0.8) holding a surface sample the camera saw (or whose
   nearest sample it saw), by the truth's depth (``map_quality.seen_cells``);
 * *textured*: the share of the seen cells that carry a colour (target >= 0.85);
+* *area*: the same by area: of the visible true surface samples that lie in occupied cells,
+  the share whose cell is textured (a cell of which the camera saw a sliver counts for its
+  sliver, not as a whole cell);
 * *back faces*: textured cells more than one cell from any surface the camera saw, as a
   share of the occupied cells it did not see (target <= 1 %); *unseen textured*: all
   textured cells the truth does not count as seen (most lie next to the seen surface);
@@ -216,13 +219,29 @@ def scores(bag: Path, folder: Path, explain: bool = False) -> dict:
     colour = colour_metrics(cells.centres, cells.probabilities, cells.lattice, cells.colours,
                             cells.textured, surface, truth.surface_colours, visible)
     unseen = int(np.count_nonzero(~seen))
+    # the seen surface by area: the visible true samples (area-uniform) in occupied cells
+    owner = _owners(cells.centres[occupied], cells.lattice, truth.surface_points[visible])
+    owner = owner[owner >= 0]
     result = {'seen': int(seen.sum()), 'textured': int(np.count_nonzero(seen & textured)),
+              'area': len(owner), 'area_textured': int(np.count_nonzero(textured[owner])),
               'unseen': unseen, 'unseen_textured': int(np.count_nonzero(textured & ~seen)),
               'back': int(np.count_nonzero(textured & ~seen & (far > resolution))),
               'colour': colour['colour_error_median'], 'p95': colour['colour_error_p95']}
     if explain:
         result.update(_why_untextured(cells, occupied, seen, visible, truth, surface, shot))
     return result
+
+
+def _owners(centres, lattice, points) -> np.ndarray:
+    """The occupied cell (an index into ``centres``) each of ``points`` lies in, -1 for none."""
+    from inhand_common.cell_lattice import cell_indices
+    _, group = np.unique(np.vstack([cell_indices(centres, lattice), cell_indices(points, lattice)]),
+                         axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    cell_of_group = np.full(group.max() + 1, -1)
+    cell_of_group[group[:len(centres)]] = np.arange(len(centres))
+    owner: np.ndarray = cell_of_group[group[len(centres):]]
+    return owner
 
 
 WHY_TOLERANCES = (0.001, 0.002, 0.003)   # m: the truth's visibility, tighter than a cell
@@ -236,7 +255,6 @@ def _why_untextured(cells, occupied, seen, visible, truth, surface, shot) -> dic
     untextured cells' samples whose pixel has no stereo depth, and the seen cells and the
     textured ones among them were the truth's visibility tighter (:data:`WHY_TOLERANCES`)
     than its one cell (``visible``: the samples :func:`scores` counts as seen)."""
-    from inhand_common.cell_lattice import cell_indices
     from inhand_stereo.texture import MAP_VIEW, depth_holes, project_cells
     from inhand_stereo.texture_kernels import map_depth
     from inhand_tools.map_quality import seen_cells
@@ -261,15 +279,8 @@ def _why_untextured(cells, occupied, seen, visible, truth, surface, shot) -> dic
               np.asarray(left.left_camera.P, dtype=float), float(resolution), front)
     left_out = seen & ~textured
     hidden = front[row, column] < projection.z - MAP_VIEW.ahead * resolution
-    # each visible sample's cell, as an index into the occupied cells (-1: none)
     points = truth.surface_points[visible]
-    _, group = np.unique(np.vstack([cell_indices(centres, cells.lattice),
-                                    cell_indices(points, cells.lattice)]),
-                         axis=0, return_inverse=True)
-    group = group.reshape(-1)
-    cell_of_group = np.full(group.max() + 1, -1)
-    cell_of_group[group[:len(centres)]] = np.arange(len(centres))
-    owner = cell_of_group[group[len(centres):]]
+    owner = _owners(centres, cells.lattice, points)
     counts = np.bincount(owner[owner >= 0], minlength=len(centres))
     mine = (owner >= 0) & left_out[np.maximum(owner, 0)]
     _, sample_row, sample_column = pixels(points[mine])
@@ -302,7 +313,7 @@ def _why_line(total: dict) -> str:
             f"in holes); textured share with the truth's visibility within {tight}")
 
 
-KEYS = ('seen', 'textured', 'unseen', 'back', 'unseen_textured')
+KEYS = ('seen', 'textured', 'unseen', 'back', 'unseen_textured', 'area', 'area_textured')
 
 
 def _row(result: dict) -> str:
@@ -310,6 +321,7 @@ def _row(result: dict) -> str:
     colour = (f" {result['colour']:6.1f} / {result['p95']:5.1f}" if 'colour' in result
               else '')
     return (f"{result['seen']:5d} {result['textured'] / result['seen']:9.3f} "
+            f"{result['area_textured'] / max(result['area'], 1):6.3f} "
             f"{result['back']:5d} ({result['back'] / unseen:6.2%}) "
             f"{result['unseen_textured']:5d} ({result['unseen_textured'] / unseen:6.2%})"
             f'{colour}')
@@ -358,14 +370,14 @@ def main() -> int:
         folder.mkdir(parents=True, exist_ok=True)
         # the validation set's views are named after their sessions: a wider first column
         width = 34 if 'validation' in names else 14
-        print(f'{"session":{width}s} {"seen":>5s} {"textured":>9s} {"back faces":>16s} '
+        print(f'{"session":{width}s} {"seen":>5s} {"textured":>9s} {"area":>6s} {"back faces":>16s} '
               f'{"unseen textured":>17s} {"colour error median / p95":>14s}', flush=True)
         for set_name in names:
             if set_name == 'validation' and not VALIDATION.is_dir():
                 print(f'validation: skipped: no {VALIDATION} (the shared data beside the '
                       'workspace)\n', flush=True)
                 continue
-            total = np.zeros(5, dtype=np.int64)
+            total = np.zeros(len(KEYS), dtype=np.int64)
             reasons: dict = {}
             for name, bag in _sessions(set_name, folder):
                 started = time.monotonic()
@@ -376,7 +388,7 @@ def main() -> int:
                         reasons[key] = reasons.get(key, 0) + value
                 print(f'{name:{width}s} {_row(result)}   ({time.monotonic() - started:.0f} s)',
                       flush=True)
-            seen, textured, unseen, back, _ = total
+            seen, textured, unseen, back = total[:4]
             verdict = 'PASS' if textured / seen >= 0.85 and back / unseen <= 0.01 else 'FAIL'
             print(f'{set_name + " (all)":{width}s} {_row(dict(zip(KEYS, total)))}   targets >= '
                   f'0.85 textured, <= 1 % back faces: {verdict}', flush=True)
