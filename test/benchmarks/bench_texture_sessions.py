@@ -221,14 +221,15 @@ def scores(bag: Path, folder: Path, explain: bool = False) -> dict:
     unseen = int(np.count_nonzero(~seen))
     # the seen surface by area: the visible true samples (area-uniform) in occupied cells
     owner = _owners(cells.centres[occupied], cells.lattice, truth.surface_points[visible])
-    owner = owner[owner >= 0]
+    held = owner[owner >= 0]
     result = {'seen': int(seen.sum()), 'textured': int(np.count_nonzero(seen & textured)),
-              'area': len(owner), 'area_textured': int(np.count_nonzero(textured[owner])),
+              'area': len(held), 'area_textured': int(np.count_nonzero(textured[held])),
               'unseen': unseen, 'unseen_textured': int(np.count_nonzero(textured & ~seen)),
               'back': int(np.count_nonzero(textured & ~seen & (far > resolution))),
               'colour': colour['colour_error_median'], 'p95': colour['colour_error_p95']}
     if explain:
-        result.update(_why_untextured(cells, occupied, seen, visible, truth, surface, shot))
+        result.update(_why_untextured(cells, occupied, seen, visible, owner, truth, surface,
+                                      shot))
     return result
 
 
@@ -247,14 +248,15 @@ def _owners(centres, lattice, points) -> np.ndarray:
 WHY_TOLERANCES = (0.001, 0.002, 0.003)   # m: the truth's visibility, tighter than a cell
 
 
-def _why_untextured(cells, occupied, seen, visible, truth, surface, shot) -> dict:
+def _why_untextured(cells, occupied, seen, visible, owner, truth, surface, shot) -> dict:
     """Where the seen cells left untextured are (``--why``), in counts that add up over a
     set: those the map's own cells hide at their centre's pixel (another occupied cell more
     than ``MapView.ahead`` nearer: what texture_cells' second rule reads), the visible true
     surface samples in the untextured and in the textured seen cells, those of the
     untextured cells' samples whose pixel has no stereo depth, and the seen cells and the
     textured ones among them were the truth's visibility tighter (:data:`WHY_TOLERANCES`)
-    than its one cell (``visible``: the samples :func:`scores` counts as seen)."""
+    than its one cell (``visible``: the samples :func:`scores` counts as seen; ``owner``: the
+    occupied cell each of them lies in, -1 for none, as :func:`_owners` gives it)."""
     from inhand_stereo.texture import MAP_VIEW, depth_holes, project_cells
     from inhand_stereo.texture_kernels import map_depth
     from inhand_tools.map_quality import seen_cells
@@ -280,7 +282,6 @@ def _why_untextured(cells, occupied, seen, visible, truth, surface, shot) -> dic
     left_out = seen & ~textured
     hidden = front[row, column] < projection.z - MAP_VIEW.ahead * resolution
     points = truth.surface_points[visible]
-    owner = _owners(centres, cells.lattice, points)
     counts = np.bincount(owner[owner >= 0], minlength=len(centres))
     mine = (owner >= 0) & left_out[np.maximum(owner, 0)]
     _, sample_row, sample_column = pixels(points[mine])
