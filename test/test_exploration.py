@@ -85,6 +85,37 @@ def test_the_predicted_surface_follows_the_touched_cap_and_closes_the_sphere_uns
     assert band.min() < surface.settings.signal_std < band.max()
 
 
+def test_the_completed_surface_is_the_prediction_near_the_touched_cells_with_its_std():
+    # a cap touched in two bands with an untouched gap between them, on the sphere's top
+    cells, free = _sphere_cap(z_above=0.0)
+    band = (cells[:, 2] < 0.015) | (cells[:, 2] > 0.025)
+    # the prior the cap's sphere, reaching round it (as in the test above)
+    surface = predict_surface(cells[band], RESOLUTION, free,
+                              PredictionSettings(prior='superquadric', prior_reach=0.05))
+    completed = surface.completed()
+    reach = surface.settings.completed_reach
+    assert not completed.empty and 0 < len(completed.faces) < len(surface.faces)
+    # each of its triangles has its centroid within reach of a touched cell ...
+    from scipy.spatial import cKDTree
+    centroids = completed.vertices[completed.faces].mean(axis=1)
+    assert cKDTree(cells[band]).query(centroids)[0].max() <= reach + 1e-12
+    # ... the gap between the bands is bridged, the prediction far below them is not kept
+    r = np.linalg.norm(completed.vertices, axis=1)
+    gap = (completed.vertices[:, 2] > 0.016) & (completed.vertices[:, 2] < 0.024)
+    assert gap.any() and np.all(np.abs(r[gap] - RADIUS) < 0.004)
+    assert completed.vertices[:, 2].min() > -reach - RESOLUTION
+    assert surface.vertices[:, 2].min() < -0.02
+    # the same vertices and standard deviations as the prediction's, and a valid mesh
+    kept = cKDTree(surface.vertices).query(completed.vertices)
+    assert np.all(kept[0] == 0)
+    assert np.array_equal(completed.vertex_std, surface.vertex_std[kept[1]])
+    assert np.array_equal(completed.process_std, surface.process_std[kept[1]])
+    assert completed.faces.max() < len(completed.vertices) and completed.faces.min() >= 0
+    # a reach past everything keeps the whole prediction
+    whole = replace(surface, settings=replace(surface.settings, completed_reach=1.0)).completed()
+    assert len(whole.faces) == len(surface.faces)
+
+
 def test_what_a_camera_saw_is_surface_and_the_space_in_front_of_it_free():
     touched, free = _sphere_cap(z_above=0.02)        # a small cap touched at the top
     camera = np.array([0.3, 0.0, 0.0])               # the camera looks at the sphere's +x side
@@ -280,12 +311,16 @@ def test_predict_surface_writes_the_surface_with_its_std_the_ranked_touches_and_
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert 'best next touch' in run.stdout
-    for suffix in ('_predicted.ply', '_next_touch.yaml', '_uncertainty.png'):
+    for suffix in ('_predicted.ply', '_completed.ply', '_next_touch.yaml', '_uncertainty.png'):
         assert (tmp_path / f'c{suffix}').stat().st_size > 0
     import trimesh
     mesh = trimesh.load(tmp_path / 'c_predicted.ply', process=False)
     std = np.asarray(mesh.metadata['_ply_raw']['vertex']['data']['std'])
     assert len(std) == len(mesh.vertices) > 100 and np.all(std >= 0) and std.max() < 0.05
+    # the completed surface: the part of the prediction near the touched cells, with its std
+    completed = trimesh.load(tmp_path / 'c_completed.ply', process=False)
+    assert 0 < len(completed.faces) < len(mesh.faces)
+    assert len(np.asarray(completed.metadata['_ply_raw']['vertex']['data']['std'])) == len(completed.vertices)
     answer = yaml.safe_load((tmp_path / 'c_next_touch.yaml').read_text())
     suggestions = answer['suggestions']
     assert len(suggestions) == 4 and answer['up'] == [0.0, 0.0, -1.0]

@@ -45,13 +45,17 @@ The process's own cannot exceed ``signal_std``; where only the prior shape stand
 object it may be off by much more, so the reported one adds, in quadrature,
 :attr:`PredictionSettings.extrapolation` times the distance beyond one length scale from the
 nearest touched cell (the next touch's gain uses the process's own: a touch reduces that).
-The defaults and how well they are calibrated: docs/exploration.md.
+The *completed surface* is the part of that mesh within
+:attr:`PredictionSettings.completed_reach` of the surface cells (:meth:`PredictedSurface.completed`):
+the touched surface with the gaps between strokes bridged and its edges carried on a little;
+beyond, the uncertainty says where to touch next. The defaults and how well they are
+calibrated: docs/exploration.md.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -100,6 +104,7 @@ class PredictionSettings:
     prior: str = 'ellipsoid'        # or 'superquadric'
     prior_reach: float = 0.02       # m: how far past the touched cells the prior may reach
     extrapolation: float = 0.75     # std added per metre beyond a length scale from the cells
+    completed_reach: float = 0.0075  # m: how far past the surface cells the completed surface goes
 
     def __post_init__(self) -> None:
         # refused as a node refuses a parameter: by name, with the allowed values
@@ -126,6 +131,10 @@ PREDICTION_PARAMETERS = (
               'predicted surface per metre of its distance from the nearest touched cell beyond one '
               'length scale: how far the prior shape may be off where it stands in for the object',
               minimum=0.0, maximum=5.0),
+    ParamSpec('completed_reach', PredictionSettings.completed_reach, 'How far the completed '
+              'surface reaches past the touched (and seen) cells (m): the part of the predicted '
+              'surface whose triangles lie this near them, gaps between them bridged',
+              minimum=0.001, maximum=1.0),
     ParamSpec('prior', PredictionSettings.prior, 'Shape the surface falls back to where nothing '
               'was touched: the ellipsoid on the cells\' principal axes, or their robust '
               'superquadric fit', choices=('ellipsoid', 'superquadric')),
@@ -400,12 +409,14 @@ class _SparseProcess:
 
 @dataclass(frozen=True, eq=False)
 class PredictedSurface:
-    """The completed surface: mesh ``vertices`` (V, 3) m and outward ``faces`` (F, 3), the
+    """The predicted surface: mesh ``vertices`` (V, 3) m and outward ``faces`` (F, 3), the
     standard deviation at each vertex ``vertex_std`` (m: how far the true surface may be,
     :meth:`_SparseProcess.total_std`) and the process's own part of it ``process_std`` (what
     a touch can reduce: the next touch's gain), the grid points next to the surface
     ``band_points`` (B, 3) (their standard deviation: :meth:`band_std`), the ``prior`` and
-    the process, and the counts it was made from."""
+    the process, the counts it was made from, and the surface cells ``cells`` (N, 3) it was
+    predicted through (the occupied cells, and those a camera saw). Its part near those cells
+    is the completed surface (:meth:`completed`)."""
 
     vertices: Points
     faces: NDArray[np.int64]
@@ -417,10 +428,29 @@ class PredictedSurface:
     observations: int
     inducing: int
     settings: PredictionSettings
+    cells: Points
 
     @property
     def empty(self) -> bool:
         return len(self.faces) == 0
+
+    def completed(self) -> PredictedSurface:
+        """The completed surface: the triangles whose centroid lies within
+        ``settings.completed_reach`` of a surface cell, their vertices with their standard
+        deviations. Farther out the prediction is mostly the prior shape's guess: after 20
+        strokes, half or more of it lies over 5 mm from the true surface beyond a centimetre
+        from every cell (docs/exploration.md, "The completed surface, how far it reaches").
+        The whole prediction is still what the uncertainty and the next touches are made of."""
+        if self.empty or len(self.cells) == 0:
+            return self
+        centroids = self.vertices[self.faces].mean(axis=1)
+        distance, _ = cKDTree(self.cells).query(centroids, distance_upper_bound=self.settings.completed_reach)
+        faces = self.faces[np.isfinite(distance)]
+        used = np.unique(faces)
+        index = np.full(len(self.vertices), -1, dtype=np.int64)
+        index[used] = np.arange(len(used))
+        return replace(self, vertices=self.vertices[used], faces=index[faces],
+                       vertex_std=self.vertex_std[used], process_std=self.process_std[used])
 
     def band_std(self) -> Floats:
         """The standard deviation (m) at the grid points next to the surface (on request:
@@ -513,14 +543,14 @@ def predict_surface(cells: ArrayLike, resolution: float, free: ArrayLike | None 
     own = process.std(vertices)
     return PredictedSurface(vertices, np.asarray(faces, dtype=np.int64), process.total_std(vertices, own),
                             own, band_points, prior, process, len(obs.points), len(process.inducing),
-                            settings)
+                            settings, occupied)
 
 
 def _no_surface(prior: SurfacePrior, settings: PredictionSettings, process: _SparseProcess | None = None,
                 observations: int = 0, inducing: int = 0) -> PredictedSurface:
     nothing = np.zeros((0, 3))
     return PredictedSurface(nothing, np.zeros((0, 3), dtype=np.int64), np.zeros(0), np.zeros(0), nothing,
-                            prior, process, observations, inducing, settings)
+                            prior, process, observations, inducing, settings, nothing)
 
 
 def predict_map_surface(centres: ArrayLike, probabilities: ArrayLike, resolution: float,

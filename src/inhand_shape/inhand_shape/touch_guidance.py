@@ -2,7 +2,8 @@
 
 :func:`guide` runs the predicted surface (implicit_surface.py) and the ranked next touches
 (next_touch.py) on a map's cells; :func:`write_guidance_files` writes ``NAME_predicted.ply``
-(the predicted surface, a per-vertex ``std`` in m) and ``NAME_next_touch.yaml`` (a ranked list
+(the predicted surface, a per-vertex ``std`` in m), ``NAME_completed.ply`` (its part near the
+touched cells: the completed surface, the same property) and ``NAME_next_touch.yaml`` (a ranked list
 ``suggestions``: ``position`` and ``approach`` in the map's frame, ``gain``, ``std``), with the
 picture if given, atomically (all or none). The picture is drawn by inhand_tools.
 """
@@ -103,11 +104,12 @@ class Guidance:
         if s.empty:
             return 'no predicted surface: too few occupied cells'
         std = s.vertex_std * 1000
+        completed = s.completed()
         best = (f'; best next touch at ({", ".join(f"{v * 100:.1f}" for v in self.suggestions[0].position)}) '
                 f'cm, gain {100 * self.suggestions[0].gain:.1f} %' if self.suggestions else
                 '; no reachable next touch')
         return (f'predicted surface {len(s.faces):,} triangles, std median {np.median(std):.1f} mm, '
-                f'max {std.max():.1f} mm{best}')
+                f'max {std.max():.1f} mm; completed surface {len(completed.faces):,} triangles{best}')
 
     def as_dict(self) -> dict[str, Any]:
         """The content of NAME_next_touch.yaml."""
@@ -116,6 +118,7 @@ class Guidance:
                 'support': None if self.support is None else round(self.support, 5),
                 'suggestions': [x.as_dict() for x in self.suggestions],
                 'surface': {'triangles': int(len(s.faces)),
+                            'completed_triangles': int(len(s.completed().faces)),
                             'std_median': round(float(np.median(s.vertex_std)), 5) if not s.empty else None,
                             'std_max': round(float(s.vertex_std.max()), 5) if not s.empty else None,
                             'observations': s.observations, 'inducing_points': s.inducing},
@@ -155,18 +158,20 @@ def guidance_file_names(output_dir: str | Path, name: str) -> dict[str, Path]:
     """What :func:`write_guidance_files` writes, by kind."""
     folder = Path(output_dir)
     return {'predicted': folder / f'{name}_predicted.ply',
+            'completed': folder / f'{name}_completed.ply',
             'suggestions': folder / f'{name}_next_touch.yaml',
             'picture': folder / f'{name}_uncertainty.png'}
 
 
 def write_guidance_files(guidance: Guidance, output_dir: str | Path, name: str,
                          picture: bytes | None = None) -> list[Path]:
-    """Write the predicted surface (none when empty), the suggestions and the ``picture``
-    (PNG bytes) if given, all or none; the paths written."""
+    """Write the predicted and the completed surface (none when empty), the suggestions and
+    the ``picture`` (PNG bytes) if given, all or none; the paths written."""
     files = guidance_file_names(output_dir, name)
-    surface = guidance.surface
+    surface, completed = guidance.surface, guidance.surface.completed()
     contents: dict[Path, bytes | None] = {
         files['predicted']: None if surface.empty else mesh_bytes(surface.trimesh(), 'ply'),
+        files['completed']: None if completed.empty else mesh_bytes(completed.trimesh(), 'ply'),
         files['suggestions']: yaml_document(f'Where to touch next (inhand_shape): {guidance.summary()}',
                                             guidance.as_dict())}
     if picture is not None:

@@ -6,6 +6,9 @@ Reads a map (NPZ from occupancy/save or build_map, or its PLY) and writes, in ``
 * ``NAME_predicted.ply``: the predicted surface (a Gaussian process implicit surface through
   the occupied cells, falling back to their superquadric where nothing was touched) as a
   triangle mesh with a per-vertex ``std`` property (m): how far the true surface may be;
+* ``NAME_completed.ply``: the completed surface, the part of it within ``completed_reach``
+  (7.5 mm) of the touched cells: the touched surface with the gaps between strokes bridged,
+  the same property; farther out the prediction is a guess to be touched, not a surface;
 * ``NAME_next_touch.yaml``: ``suggestions``, best first, each with ``position`` [x, y, z] on
   the predicted surface and ``approach`` [x, y, z] (unit, into the surface) in the map's frame,
   its expected ``gain`` (the share of the surface's summed variance one touch there removes)
