@@ -191,6 +191,7 @@ def camera_file(bag: Path, truth, folder: Path) -> Path:
 def scores(bag: Path, folder: Path, explain: bool = False) -> dict:
     from scipy.spatial import cKDTree
 
+    from inhand_common.cell_lattice import cells_holding
     from inhand_common.ground_truth import in_frame, load_truth
     from inhand_tools.bag_stereo_shot import read_configured_shot
     from inhand_tools.commands.build_map import main as build_map
@@ -220,7 +221,7 @@ def scores(bag: Path, folder: Path, explain: bool = False) -> dict:
                             cells.textured, surface, truth.surface_colours, visible)
     unseen = int(np.count_nonzero(~seen))
     # the seen surface by area: the visible true samples (area-uniform) in occupied cells
-    owner = _owners(cells.centres[occupied], cells.lattice, truth.surface_points[visible])
+    owner = cells_holding(truth.surface_points[visible], cells.centres[occupied], cells.lattice)
     held = owner[owner >= 0]
     result = {'seen': int(seen.sum()), 'textured': int(np.count_nonzero(seen & textured)),
               'area': len(held), 'area_textured': int(np.count_nonzero(textured[held])),
@@ -231,18 +232,6 @@ def scores(bag: Path, folder: Path, explain: bool = False) -> dict:
         result.update(_why_untextured(cells, occupied, seen, visible, owner, truth, surface,
                                       shot))
     return result
-
-
-def _owners(centres, lattice, points) -> np.ndarray:
-    """The occupied cell (an index into ``centres``) each of ``points`` lies in, -1 for none."""
-    from inhand_common.cell_lattice import cell_indices
-    _, group = np.unique(np.vstack([cell_indices(centres, lattice), cell_indices(points, lattice)]),
-                         axis=0, return_inverse=True)
-    group = group.reshape(-1)
-    cell_of_group = np.full(group.max() + 1, -1)
-    cell_of_group[group[:len(centres)]] = np.arange(len(centres))
-    owner: np.ndarray = cell_of_group[group[len(centres):]]
-    return owner
 
 
 WHY_TOLERANCES = (0.001, 0.002, 0.003)   # m: the truth's visibility, tighter than a cell
@@ -256,7 +245,7 @@ def _why_untextured(cells, occupied, seen, visible, owner, truth, surface, shot)
     untextured cells' samples whose pixel has no stereo depth, and the seen cells and the
     textured ones among them were the truth's visibility tighter (:data:`WHY_TOLERANCES`)
     than its one cell (``visible``: the samples :func:`scores` counts as seen; ``owner``: the
-    occupied cell each of them lies in, -1 for none, as :func:`_owners` gives it)."""
+    occupied cell each of them lies in, -1 for none)."""
     from inhand_stereo.texture import MAP_VIEW, depth_holes, project_cells
     from inhand_stereo.texture_kernels import map_depth
     from inhand_tools.map_quality import seen_cells

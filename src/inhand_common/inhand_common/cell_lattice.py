@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['Lattice', 'cell_indices', 'infer_lattice']
+__all__ = ['Lattice', 'cell_indices', 'cells_holding', 'infer_lattice']
 
 
 @dataclass(frozen=True)
@@ -57,3 +57,31 @@ def cell_indices(points: ArrayLike, lattice: Lattice) -> NDArray[np.int64]:
     """Integer cell index (n, 3) of each point."""
     flat = np.asarray(points, dtype=float).reshape(-1, 3)
     return np.asarray(np.floor((flat - np.asarray(lattice.origin)) / lattice.resolution), dtype=np.int64)
+
+
+def cells_holding(points: ArrayLike, centres: ArrayLike, lattice: Lattice) -> NDArray[np.intp]:
+    """For each of ``points`` (K, 3), the index into ``centres`` (M, 3: cell centres on
+    ``lattice``) of the cell it lies in; -1 where it lies in none of them or is not finite.
+    One sort of the cells' keys and a binary search per point (keys taken within the cells'
+    bounding box, so that they cannot overflow)."""
+    positions = np.asarray(points, dtype=float).reshape(-1, 3)
+    cell_centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    owner = np.full(len(positions), -1, dtype=np.intp)
+    finite = np.flatnonzero(np.isfinite(positions).all(axis=1))
+    if not len(finite) or not len(cell_centres):
+        return owner
+    cells = cell_indices(cell_centres, lattice)
+    low, high = cells.min(axis=0), cells.max(axis=0)
+    keys = cell_indices(positions[finite], lattice)
+    near = np.all((keys >= low) & (keys <= high), axis=1)
+    span = high - low + 1
+
+    def flat(ijk: np.ndarray) -> np.ndarray:
+        shifted = ijk - low
+        return np.asarray((shifted[:, 0] * span[1] + shifted[:, 1]) * span[2] + shifted[:, 2])
+    cell_keys, point_keys = flat(cells), flat(keys[near])
+    order = np.argsort(cell_keys, kind='stable')
+    where = np.clip(np.searchsorted(cell_keys[order], point_keys), 0, len(order) - 1)
+    inside = cell_keys[order][where] == point_keys
+    owner[finite[near][inside]] = order[where[inside]]
+    return owner

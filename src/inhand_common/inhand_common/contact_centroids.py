@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from inhand_common.array_types import Points
-from inhand_common.cell_lattice import Lattice, cell_indices
+from inhand_common.cell_lattice import Lattice, cells_holding
 
 __all__ = ['RecentPositions', 'centroids', 'position_sums']
 
@@ -44,27 +44,13 @@ def position_sums(points: ArrayLike, centres: ArrayLike, lattice: Lattice,
     map are then not its own)."""
     cell_centres = np.asarray(centres, dtype=float).reshape(-1, 3)
     positions = np.asarray(points, dtype=float).reshape(-1, 3)
-    positions = positions[np.isfinite(positions).all(axis=1)]
     sums = np.zeros((len(cell_centres), 3))
     counts = np.zeros(len(cell_centres), dtype=np.int64)
-    if not len(positions) or not len(cell_centres):
+    owner = cells_holding(positions, cell_centres, lattice)
+    inside = owner >= 0
+    if not inside.any():
         return sums, counts
-    cells = cell_indices(cell_centres, lattice)
-    low, high = cells.min(axis=0), cells.max(axis=0)
-    keys = cell_indices(positions, lattice)
-    near = np.all((keys >= low) & (keys <= high), axis=1)    # in the cells' box: no overflow
-    keys, positions = keys[near], positions[near]
-    span = high - low + 1
-
-    def flat(ijk: np.ndarray) -> np.ndarray:
-        shifted = ijk - low
-        return np.asarray((shifted[:, 0] * span[1] + shifted[:, 1]) * span[2] + shifted[:, 2])
-    cell_keys, point_keys = flat(cells), flat(keys)
-    order = np.argsort(cell_keys, kind='stable')
-    where = np.clip(np.searchsorted(cell_keys[order], point_keys), 0, len(order) - 1)
-    inside = cell_keys[order][where] == point_keys
-    owner = order[where[inside]]
-    positions = positions[inside]
+    owner, positions = owner[inside], positions[inside]
     if newest is not None:
         # each point's place from the newest in its cell (0: the newest)
         by_cell = np.argsort(owner, kind='stable')

@@ -323,9 +323,15 @@ def _without_cavities(vertices: Points, faces: NDArray[np.int64]
     t = vertices[faces]
     volume = np.einsum('ij,ij->i', t[:, 0], np.cross(t[:, 1], t[:, 2])) / 6.0
     solid = np.bincount(label, volume) > 0
-    faces = faces[solid[label]]
-    used, faces = np.unique(faces, return_inverse=True)
-    return vertices[used], faces.reshape(-1, 3).astype(np.int64)
+    used, kept = _compacted(faces[solid[label]])
+    return vertices[used], kept
+
+
+def _compacted(faces: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """A subset of a mesh's ``faces`` (F, 3) without the vertices they leave unused: the
+    vertices kept (indices into the old ones, ascending) and the faces renumbered on them."""
+    used, renumbered = np.unique(faces, return_inverse=True)
+    return used, renumbered.reshape(-1, 3).astype(np.int64)
 
 
 class _SparseProcess:
@@ -445,11 +451,8 @@ class PredictedSurface:
             return self
         centroids = self.vertices[self.faces].mean(axis=1)
         distance, _ = cKDTree(self.cells).query(centroids, distance_upper_bound=self.settings.completed_reach)
-        faces = self.faces[np.isfinite(distance)]
-        used = np.unique(faces)
-        index = np.full(len(self.vertices), -1, dtype=np.int64)
-        index[used] = np.arange(len(used))
-        return replace(self, vertices=self.vertices[used], faces=index[faces],
+        used, faces = _compacted(self.faces[np.isfinite(distance)])
+        return replace(self, vertices=self.vertices[used], faces=faces,
                        vertex_std=self.vertex_std[used], process_std=self.process_std[used])
 
     def band_std(self) -> Floats:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, fields, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -98,18 +99,23 @@ class Guidance:
     support: float | None
     seconds: dict[str, float] = field(default_factory=dict)
 
+    @cached_property
+    def completed(self) -> PredictedSurface:
+        """The completed surface (:meth:`PredictedSurface.completed`), found once for the
+        summary, the YAML and the file."""
+        return self.surface.completed()
+
     def summary(self) -> str:
         """One line for people."""
         s = self.surface
         if s.empty:
             return 'no predicted surface: too few occupied cells'
         std = s.vertex_std * 1000
-        completed = s.completed()
         best = (f'; best next touch at ({", ".join(f"{v * 100:.1f}" for v in self.suggestions[0].position)}) '
                 f'cm, gain {100 * self.suggestions[0].gain:.1f} %' if self.suggestions else
                 '; no reachable next touch')
         return (f'predicted surface {len(s.faces):,} triangles, std median {np.median(std):.1f} mm, '
-                f'max {std.max():.1f} mm; completed surface {len(completed.faces):,} triangles{best}')
+                f'max {std.max():.1f} mm; completed surface {len(self.completed.faces):,} triangles{best}')
 
     def as_dict(self) -> dict[str, Any]:
         """The content of NAME_next_touch.yaml."""
@@ -118,7 +124,7 @@ class Guidance:
                 'support': None if self.support is None else round(self.support, 5),
                 'suggestions': [x.as_dict() for x in self.suggestions],
                 'surface': {'triangles': int(len(s.faces)),
-                            'completed_triangles': int(len(s.completed().faces)),
+                            'completed_triangles': int(len(self.completed.faces)),
                             'std_median': round(float(np.median(s.vertex_std)), 5) if not s.empty else None,
                             'std_max': round(float(s.vertex_std.max()), 5) if not s.empty else None,
                             'observations': s.observations, 'inducing_points': s.inducing},
@@ -168,7 +174,7 @@ def write_guidance_files(guidance: Guidance, output_dir: str | Path, name: str,
     """Write the predicted and the completed surface (none when empty), the suggestions and
     the ``picture`` (PNG bytes) if given, all or none; the paths written."""
     files = guidance_file_names(output_dir, name)
-    surface, completed = guidance.surface, guidance.surface.completed()
+    surface, completed = guidance.surface, guidance.completed
     contents: dict[Path, bytes | None] = {
         files['predicted']: None if surface.empty else mesh_bytes(surface.trimesh(), 'ply'),
         files['completed']: None if completed.empty else mesh_bytes(completed.trimesh(), 'ply'),
