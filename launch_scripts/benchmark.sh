@@ -2,7 +2,7 @@
 # Benchmarks of the workspace. Sets up .venv if needed, then runs the chosen benchmark from
 # the workspace root; the remaining arguments go to the benchmark script.
 #
-# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|texture-sessions|quality|validation|fingers|shape|explore|startup|latency|fuzz|soak|all]
+# Usage: bash launch_scripts/benchmark.sh [liberty|mapping|replay|stereo|stereo-bags|stereo-node|vision|texture|texture-sessions|quality|validation|cell-judge|fingers|shape|explore|startup|latency|fuzz|soak|all]
 #                                         [benchmark options]
 #   liberty (default)  Liberty codec parse rate + driver end-to-end throughput
 #                      (test/benchmarks/bench_liberty.py: --seconds N, --quick, --codec-only)
@@ -43,6 +43,11 @@
 #                      generator's hands and meshes; a check, never tuned on) beside each
 #                      session's one-touch oracle (test/benchmarks/bench_validation.py:
 #                      --sessions, --set NAME=VALUE, --jobs, --keep DIR)
+#   cell-judge         how much a learned judge of each touched cell could add to the touch
+#                      map's rules: a classifier of the cells' neighbourhoods trained on
+#                      hand_sessions.py's sets, each session held out in turn, checked on the
+#                      validation folder (test/benchmarks/bench_cell_judge.py: --train DIRS,
+#                      --check DIR, --keep DIR; installs scikit-learn into .sklearn-lib)
 #   fingers            real fingers: pivot calibration accuracy (10-60 degrees), the cat mapped
 #                      with sensors on the nail (point fingertips / raw / offset only /
 #                      calibrated, a wrong offset) and the finger rolling 0-30 degrees
@@ -100,8 +105,9 @@ declare -A BENCHMARKS=(
   [soak]=soak.py
   [shape]=bench_shape.py
   [explore]=bench_explore.py
+  [cell-judge]=bench_cell_judge.py
 )
-ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture texture-sessions quality validation fingers shape explore startup latency fuzz soak)
+ORDER=(liberty mapping replay stereo stereo-bags stereo-node vision texture texture-sessions quality validation cell-judge fingers shape explore startup latency fuzz soak)
 
 WHICH=liberty
 if [[ $# -gt 0 && "$1" != -* ]]; then
