@@ -48,10 +48,11 @@ from scipy import ndimage
 from inhand_common.cell_lattice import Lattice
 from inhand_common.ground_truth import load_truth
 from inhand_mapping.map_io import load_npz
+from inhand_mapping.occupancy import OccupancyGrid
 from inhand_tools.map_quality import map_metrics, one_touch_oracle, surface_truth
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_validation import EXPLORED_RADIUS, FOLDER, NAME, f_target, score
+from bench_validation import EXPLORED_RADIUS, FOLDER, meets_targets, score, session_floor
 
 POOL_TOUCHES = 0.5     # cells with at least this evidence are judged (bridge's least)
 WEIGHT_CAP = 4.0       # the local plane's weights, as surface_layer.py caps them
@@ -70,12 +71,11 @@ def _box_sum(grid: np.ndarray, radius: int) -> np.ndarray:
     return np.asarray(ndimage.uniform_filter(grid, size=size, mode='constant') * size ** 3)
 
 
-def cell_features(map_path: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+def cell_features(grid: OccupancyGrid, evidence: np.ndarray
+                  ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
     """(feature names, features (N, F), the pool's cell indices (N, 3), the shipped map's
-    occupied flags (N,)) of the map file's pool cells."""
-    grid, _ = load_npz(map_path)
-    with np.load(map_path) as raw:
-        evidence = raw['touch_evidence'].astype(float)
+    occupied flags (N,)) of the pool cells of a map (``grid``, as loaded) whose path model
+    evidence (the file's ``touch_evidence``, before the rules) is ``evidence``."""
     n = evidence.shape[0]
     pool = np.argwhere(evidence >= POOL_TOUCHES)
     i, j, k = pool.T
@@ -170,16 +170,16 @@ class Session:
         self.name = bag.name
         truth = load_truth(bag.parent / f'{bag.name}_truth.npz')
         self.surface = surface_truth(truth, EXPLORED_RADIUS)
-        self.names, self.features, pool, self.shipped = cell_features(maps / f'{bag.name}.npz')
-        grid, _ = load_npz(maps / f'{bag.name}.npz')
+        path = maps / f'{bag.name}.npz'
+        grid, _ = load_npz(path)
+        with np.load(path) as raw:
+            evidence = raw['touch_evidence'].astype(float)
+        self.names, self.features, pool, self.shipped = cell_features(grid, evidence)
         self.centres = grid.spec.cell_centres(pool)
         self.lattice = self._lattice(grid)
         self.labels = self.surface.distance(self.centres)[0] <= SURFACE
-        oracle = one_touch_oracle(self.surface, self.lattice)
-        match = NAME.search(bag.name)
-        rate, speed, seconds = (float(match[k]) for k in ('rate', 'speed', 'seconds')) if match \
-            else (truth.rate, truth.settings['speed_cms'], truth.settings['seconds'])
-        self.floor = min(f_target(rate, speed, seconds), oracle['fscore_at_5mm'] - 0.02)
+        self.floor = session_floor(bag.name, truth,
+                                   one_touch_oracle(self.surface, self.lattice)['fscore_at_5mm'])
 
     @staticmethod
     def _lattice(grid) -> Lattice:
@@ -191,8 +191,7 @@ class Session:
         scores = map_metrics(self.centres, np.where(occupied, 1.0, 0.0), self.lattice, self.surface)
         strays = int(np.count_nonzero(occupied & ~self.labels))
         share = strays / max(int(np.count_nonzero(occupied)), 1)
-        met = scores['precision_at_5mm'] >= 0.97 and scores['fscore_at_5mm'] >= self.floor \
-            and share <= 0.01
+        met = meets_targets(scores['precision_at_5mm'], scores['fscore_at_5mm'], self.floor, share)
         return met, scores['fscore_at_5mm'] - self.floor, strays
 
 

@@ -62,6 +62,20 @@ def f_target(rate: float, speed: float, seconds: float) -> float:
     return 0.9
 
 
+def session_floor(name: str, truth, oracle_f: float) -> float:
+    """A session's F floor: its target (from its name, else its truth's settings), or 0.02
+    below its one-touch oracle where that is lower."""
+    match = NAME.search(name)
+    rate, speed, seconds = (float(match[k]) for k in ('rate', 'speed', 'seconds')) if match \
+        else (truth.rate, truth.settings['speed_cms'], truth.settings['seconds'])
+    return min(f_target(rate, speed, seconds), oracle_f - 0.02)
+
+
+def meets_targets(precision: float, f_score: float, floor: float, stray_share: float) -> bool:
+    """Precision >= 0.97, F at its floor or over, stray cells at most 1 % of the occupied."""
+    return precision >= 0.97 and f_score >= floor and stray_share <= 0.01
+
+
 def score(bag: Path, output: Path, overrides: list[str], losses: bool = False) -> dict:
     # the folder's own format (a set of ours has the simulator's sidecar beside it too, in
     # the object frame: not this one)
@@ -80,10 +94,7 @@ def score(bag: Path, output: Path, overrides: list[str], losses: bool = False) -
     oracle = one_touch_oracle(surface, cells.lattice)
     occupied = cells.centres[cells.probabilities > 0.8]
     strays = int(np.count_nonzero(surface.distance(occupied)[0] > 0.005))
-    match = NAME.search(bag.name)
-    rate, speed, seconds = (float(match[k]) for k in ('rate', 'speed', 'seconds')) if match \
-        else (truth.rate, truth.settings['speed_cms'], truth.settings['seconds'])
-    floor = min(f_target(rate, speed, seconds), oracle['fscore_at_5mm'] - 0.02)
+    floor = session_floor(bag.name, truth, oracle['fscore_at_5mm'])
     return {'F': scores['fscore_at_5mm'], 'P': scores['precision_at_5mm'],
             'R': scores['recall_at_5mm'], 'occupied': len(occupied), 'strays': strays,
             'oracle_F': oracle['fscore_at_5mm'], 'oracle_R': oracle['recall_at_5mm'],
@@ -133,7 +144,7 @@ def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
         for bag in bags:
             r = futures[bag].result()
             share = r['strays'] / max(r['occupied'], 1)
-            ok = r['P'] >= 0.97 and r['F'] >= r['floor'] and share <= 0.01
+            ok = meets_targets(r['P'], r['F'], r['floor'], share)
             met += ok
             print(f'{bag.name:32s} {r["F"]:6.3f} {r["P"]:6.3f} {r["R"]:6.3f} '
                   f'{r["strays"]:4d} {share:5.1%} {r["oracle_F"]:8.3f} {r["floor"]:6.3f}  '
