@@ -45,7 +45,6 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from inhand_common.cell_lattice import Lattice
 from inhand_common.ground_truth import load_truth
 from inhand_mapping.map_io import load_npz
 from inhand_mapping.occupancy import OccupancyGrid
@@ -60,6 +59,7 @@ AIR_TOUCHES = 0.3      # a visited cell under this is air the path crossed (surf
 SKLEARN_LIB = Path(__file__).resolve().parents[2] / '.sklearn-lib'
 SKLEARN = ('scikit-learn==1.9.1', 'joblib==1.6.0', 'threadpoolctl==3.8.0', 'narwhals==2.29.0',
            'cloudpickle==3.1.3')
+OCCUPIED = 0.8         # the maps' occupied cells: probability over this
 SURFACE = 0.005        # m: a cell centre this near the true surface is surface
 THRESHOLDS = (0.9, 0.93, 0.95, 0.97)
 VETO_RESCUE = ((0.3, None), (None, 0.97), (0.2, 0.97), (0.3, 0.97), (0.3, 0.98))
@@ -71,11 +71,11 @@ def _box_sum(grid: np.ndarray, radius: int) -> np.ndarray:
     return np.asarray(ndimage.uniform_filter(grid, size=size, mode='constant') * size ** 3)
 
 
-def cell_features(grid: OccupancyGrid, evidence: np.ndarray
-                  ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+def cell_features(grid: OccupancyGrid) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
     """(feature names, features (N, F), the pool's cell indices (N, 3), the shipped map's
-    occupied flags (N,)) of the pool cells of a map (``grid``, as loaded) whose path model
-    evidence (the file's ``touch_evidence``, before the rules) is ``evidence``."""
+    occupied flags (N,)) of the pool cells of a map (``grid``, as loaded), from its path
+    model evidence before the rules (``touch_evidence``)."""
+    evidence = np.asarray(grid.touch_evidence, dtype=float)
     n = evidence.shape[0]
     pool = np.argwhere(evidence >= POOL_TOUCHES)
     i, j, k = pool.T
@@ -139,7 +139,7 @@ def cell_features(grid: OccupancyGrid, evidence: np.ndarray
         **{f'touched_{r}': _box_sum(touched, r)[i, j, k] for r in (1, 2, 3)},
         'evidence_per_hit': e / hits,
     }
-    occupied = grid.log_odds[i, j, k] > np.log(0.8 / 0.2)
+    occupied = grid.probabilities()[i, j, k] > OCCUPIED
     return list(columns), np.column_stack(list(columns.values())), pool, occupied
 
 
@@ -170,21 +170,13 @@ class Session:
         self.name = bag.name
         truth = load_truth(bag.parent / f'{bag.name}_truth.npz')
         self.surface = surface_truth(truth, EXPLORED_RADIUS)
-        path = maps / f'{bag.name}.npz'
-        grid, _ = load_npz(path)
-        with np.load(path) as raw:
-            evidence = raw['touch_evidence'].astype(float)
-        self.names, self.features, pool, self.shipped = cell_features(grid, evidence)
+        grid, _ = load_npz(maps / f'{bag.name}.npz')
+        self.names, self.features, pool, self.shipped = cell_features(grid)
         self.centres = grid.spec.cell_centres(pool)
-        self.lattice = self._lattice(grid)
+        self.lattice = grid.spec.lattice()
         self.labels = self.surface.distance(self.centres)[0] <= SURFACE
         self.floor = session_floor(bag.name, truth,
                                    one_touch_oracle(self.surface, self.lattice)['fscore_at_5mm'])
-
-    @staticmethod
-    def _lattice(grid) -> Lattice:
-        origin = grid.spec.origin
-        return Lattice(grid.spec.resolution, (float(origin[0]), float(origin[1]), float(origin[2])))
 
     def judged(self, occupied: np.ndarray) -> tuple[bool, float, int]:
         """(targets met, F minus the floor, stray cells) with ``occupied`` pool cells."""

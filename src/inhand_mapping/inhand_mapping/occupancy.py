@@ -61,6 +61,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from inhand_common.array_types import Bools, CellFloats, CellHits, FingerIds, Floats, Points, Times
+from inhand_common.cell_lattice import Lattice
 from inhand_common.contact_centroids import centroids
 from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.dwell import DwellWeights, WeightedSamples
@@ -113,6 +114,12 @@ class GridSpec:
     def origin(self) -> Floats:
         """Map-frame position (3,) of the outer corner of cell (0, 0, 0)."""
         return np.asarray(self.centre, dtype=float) - self.size / 2.0
+
+    def lattice(self) -> Lattice:
+        """The grid's cells as the :class:`~inhand_common.cell_lattice.Lattice` the metrics
+        and the cell lookups of inhand_common take."""
+        origin = self.origin
+        return Lattice(self.resolution, (float(origin[0]), float(origin[1]), float(origin[2])))
 
     def cell_centres(self, ijk: ArrayLike) -> Points:
         """Map-frame centres (N, 3) of the cells with indices ``ijk`` (N, 3)."""

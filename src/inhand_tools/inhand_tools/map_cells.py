@@ -213,7 +213,7 @@ def _read_npz(path: Path) -> MapCells:
     centres, probabilities, hits, first_touch = grid.cells()
     if len(centres) == 0:
         raise ValueError(f'{path}: the map has no touched cells')
-    lattice = Lattice(grid.spec.resolution, tuple(float(v) for v in grid.spec.origin))
+    lattice = grid.spec.lattice()
     grid_colours = load_colours(path)
     colours, textured = (None, None) if grid_colours is None else \
         grid_colours.at(grid.spec, centres)
