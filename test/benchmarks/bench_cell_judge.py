@@ -77,7 +77,8 @@ def cell_features(grid: OccupancyGrid) -> tuple[list[str], np.ndarray, np.ndarra
     model evidence before the rules (``touch_evidence``)."""
     evidence = np.asarray(grid.touch_evidence, dtype=float)
     n = evidence.shape[0]
-    pool = np.argwhere(evidence >= POOL_TOUCHES)
+    judged = evidence >= POOL_TOUCHES
+    pool = np.argwhere(judged)
     i, j, k = pool.T
     e = evidence[i, j, k]
     # the local plane of the 7^3 box (capped evidence as weights), as surface_layer.py fits it
@@ -108,7 +109,9 @@ def cell_features(grid: OccupancyGrid) -> tuple[list[str], np.ndarray, np.ndarra
     touched = (evidence >= 1.0).astype(float)
     unvisited = (evidence == 0).astype(float)
     hits = np.maximum(grid.hits[i, j, k], 1).astype(float)
-    own = (grid.contact_sum[i, j, k] / hits[:, None] - grid.spec.cell_centres(pool)) / grid.spec.resolution
+    # where in the cell its touches were, from its centre (cells; 0 for a cell a path crossed
+    # between two samples, which holds no touch of its own)
+    own = (grid.contact_centroids(judged) - grid.spec.cell_centres(pool)) / grid.spec.resolution
     # the air's summed direction within 2 cells, along the normal
     lean = np.zeros((len(pool), 3))
     for offset in np.argwhere(np.ones((5, 5, 5))) - 2:
