@@ -43,10 +43,10 @@
 #                      generator's hands and meshes; a check, never tuned on) beside each
 #                      session's one-touch oracle (test/benchmarks/bench_validation.py:
 #                      --sessions, --set NAME=VALUE, --jobs, --keep DIR)
-#   cell-judge         how much a learned judge of each touched cell could add to the touch
-#                      map's rules: a classifier of the cells' neighbourhoods trained on
-#                      hand_sessions.py's sets, each session held out in turn, checked on the
-#                      validation folder (test/benchmarks/bench_cell_judge.py: --train DIRS,
+#   cell-judge         the touch map's cell judge (cell_judge.py): learned from
+#                      hand_sessions.py's sets, each session judged by the classifier of the
+#                      other draws, checked on the validation folder; --export FILE writes
+#                      the map's model (test/benchmarks/bench_cell_judge.py: --train DIRS,
 #                      --check DIR, --keep DIR; installs scikit-learn into .sklearn-lib)
 #   fingers            real fingers: pivot calibration accuracy (10-60 degrees), the cat mapped
 #                      with sensors on the nail (point fingertips / raw / offset only /

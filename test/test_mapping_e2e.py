@@ -322,7 +322,7 @@ def test_occupancy_node_refuses_a_workspace_that_is_not_whole_cells():
 
 
 def test_occupancy_node_refuses_a_grid_larger_than_the_machine_has():
-    """0.5 m at 0.5 mm is 1000^3 cells, about 196 GB: the node used to take 2 GB in 5 s
+    """0.5 m at 0.5 mm is 1000^3 cells, about 229 GB: the node used to take 2 GB in 5 s
     before anything said so. It refuses at start with the figure and what the machine
     has."""
     started = time.monotonic()

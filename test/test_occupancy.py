@@ -1518,11 +1518,12 @@ def test_a_map_save_replaces_the_whole_set_or_changes_nothing(tmp_path):
 
 WARM_UP_CHECK = '''
 import sys, numba, numpy as np
-from inhand_mapping import occupancy_kernels, path_kernels
+from inhand_mapping import cell_judge, occupancy_kernels, path_kernels, surface_layer
 from inhand_mapping.occupancy import GridSpec, OccupancyGrid, SensorModel, warm_up
 
 def loaded():
-    return {(module.__name__, name, sig) for module in (occupancy_kernels, path_kernels)
+    return {(module.__name__, name, sig)
+            for module in (occupancy_kernels, path_kernels, surface_layer, cell_judge)
             for name, f in vars(module).items()
             if isinstance(f, numba.core.registry.CPUDispatcher) for sig in f.signatures}
 
@@ -1535,8 +1536,12 @@ rng = np.random.default_rng(1)
 points = np.cumsum(rng.normal(0, 0.0005, (480, 3)), axis=0)
 grid.integrate(points, 100.0 + np.arange(480) / 240.0, np.arange(480) % 4)
 grid.held_points()
+grid.probabilities()                                  # the map read: the layer, the judge
+grid.integrate(points[:240] + 0.001, 103.0 + np.arange(240) / 240.0, np.arange(240) % 4)
+grid.probabilities()                                  # and read again, around what changed
 grid.integrate(points[:3])                            # untimed points
 grid.flush()
+grid.probabilities()
 print(len(after_warm_up), sorted(loaded() - after_warm_up))
 '''
 

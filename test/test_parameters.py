@@ -365,10 +365,10 @@ def test_declare_parameters_refuses_a_bad_value_with_its_range(ros_context):
 def test_a_grid_is_checked_against_the_memory_the_machine_has():
     from inhand_common.machine_memory import available_memory, human_bytes
     from inhand_mapping.mapping_config import BYTES_PER_CELL, memory_problem
-    assert memory_problem(70, 'none', 10**9) is None                  # the default: 69 MB
+    assert memory_problem(70, 'none', 10**9) is None                  # the default: 80 MB
     assert memory_problem(1000, 'none', None) is None                 # the machine does not say
     problem = memory_problem(1000, 'product', 24 * 2**30)
-    assert '1000^3 cells, about 302.7 GB of memory; this machine has 24.0 GB available' in problem
+    assert '1000^3 cells, about 353.0 GB of memory; this machine has 24.0 GB available' in problem
     assert BYTES_PER_CELL['fusion'] > BYTES_PER_CELL['none']
     assert human_bytes(1536) == '1.5 KB' and human_bytes(12) == '12 B'
     available = available_memory()

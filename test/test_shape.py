@@ -177,7 +177,8 @@ def test_a_touch_maps_cells_are_fitted_as_cells_with_their_slack(tmp_path):
     roundness = {slack: max(fit.shape) for slack, fit in fits.items()}   # e2 of the round section
     true_radius = float(np.sort(truth.size)[:2].mean())
     error = {slack: abs(r - true_radius) for slack, r in radius.items()}
-    assert max(error['measured'], error[None]) < 0.0006 < error[0.0], radius
+    # each better than the last, and the measured one within 0.6 mm of the true radius
+    assert error['measured'] < 0.0006 and error['measured'] < error[None] < error[0.0], radius
     assert abs(roundness[None] - 1.0) < abs(roundness[0.0] - 1.0), roundness
     centroids = cells.contact_centroids[occupied]
     assert np.all(np.abs(centroids - points) <= RESOLUTION / 2 + 1e-9)

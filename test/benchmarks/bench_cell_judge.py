@@ -1,32 +1,33 @@
 #!/usr/bin/env python3
-"""How much a judge of each touched cell could add to the touch map's rules: a measurement,
-not part of the map (docs/quality.md, "A learned judge of each cell").
+"""The touch map's cell judge (inhand_mapping/cell_judge.py): learned here, and measured on
+sessions it did not learn from (docs/quality.md, "The cell judge").
 
     .venv/bin/python test/benchmarks/hand_sessions.py --set A --output /tmp/hands_a   # and S,
     .venv/bin/python test/benchmarks/hand_sessions.py --set A --seconds 60 --output /tmp/hands_a60
     .venv/bin/python test/benchmarks/bench_cell_judge.py --train /tmp/hands_a,/tmp/hands_s \
-        [--check ../shared/data/validation_sessions,/tmp/hands_a60] [--keep DIR] [--jobs 2]
+        [--check ../shared/data/validation_sessions,/tmp/hands_a60] [--keep DIR] [--jobs 2] \
+        [--export src/inhand_mapping/inhand_mapping/cell_judge_model.npz]
 
-The touch map decides which touched cells are surface by hand-made rules on the path model's
-evidence around each cell (inhand_mapping/surface_layer.py). This asks whether the same
-evidence holds more than the rules use. Every session of the folders is mapped by
-``build_map`` as ``bench_validation.py`` maps it; for each cell with at least half a touch
-(the pool: every occupied cell is in it) the script computes scale-free features of its
-neighbourhood in the saved ``touch_evidence`` (touched neighbours, unvisited and air cells
-around it, the local plane's flatness and the cell's place on it, the evidence one to five
-cells along the plane's normal relative to the cell's own, where in the cell its touches were)
-and labels it by the truth (surface: its centre within 5 mm of the true surface).
+The surface layer (inhand_mapping/surface_layer.py) decides by hand-made rules which touched
+cells are surface; the judge overrides it where it is sure. Every session of the folders is
+mapped by ``build_map`` as ``bench_validation.py`` maps it, with the rules alone
+(``cell_judge`` false). For each cell with at least half a touch (the pool: every occupied
+cell is in it), the judge's features (``cell_judge.pool_features``: touched neighbours,
+unvisited and air cells around it, the local plane's flatness and the cell's place on it,
+the evidence one to five cells along the plane's normal relative to the cell's own, where in
+the cell its touches were) are labelled by the truth (surface: its centre within 5 mm of the
+true surface).
 
 A gradient-boosted classifier (scikit-learn) judges each session, trained on the ``--train``
 folders' sessions of other draws (each training session held out in turn, and for a
 ``--check`` session, every training session of its draw: a 60 s session of set A begins as
 its 120 s twin does). The sessions are then scored as ``bench_validation.py`` scores them
-(precision >= 0.97, F >= its floor, stray cells <= 1 %) for the shipped map, for the
-judge alone at several thresholds, and for the shipped map with the judge's veto (an occupied
-cell the judge gives under ``v`` is left out) and rescue (a pool cell it gives over ``r`` is
-taken). The classifier is scikit-learn's, installed on first use into ``.sklearn-lib`` (pip
-``--target``, without touching .venv; numpy and scipy are .venv's). Sets A and S come from
-``hand_sessions.py``.
+(precision >= 0.97, F >= its floor, stray cells <= 1 %) for the rules' map, for the judge
+alone at several thresholds, and for the rules' map with the judge's veto and rescue at
+several thresholds (``cell_judge.verdicts``; the map's own marked). ``--export`` writes the
+classifier of all the training sessions as the map reads it. The classifier is
+scikit-learn's, installed on first use into ``.sklearn-lib`` (pip ``--target``, without
+touching .venv; numpy and scipy are .venv's). Sets A and S come from ``hand_sessions.py``.
 """
 
 from __future__ import annotations
@@ -43,9 +44,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from inhand_common.ground_truth import load_truth
+from inhand_mapping.cell_judge import FEATURES, RESCUE, VETO, TreeEnsemble, explored, pool_features, verdicts
 from inhand_mapping.map_io import load_npz
 from inhand_mapping.occupancy import OccupancyGrid
 from inhand_tools.map_quality import map_metrics, one_touch_oracle, surface_truth
@@ -53,97 +54,23 @@ from inhand_tools.map_quality import map_metrics, one_touch_oracle, surface_trut
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_validation import EXPLORED_RADIUS, FOLDER, meets_targets, score, session_floor
 
-POOL_TOUCHES = 0.5     # cells with at least this evidence are judged (bridge's least)
-WEIGHT_CAP = 4.0       # the local plane's weights, as surface_layer.py caps them
-AIR_TOUCHES = 0.3      # a visited cell under this is air the path crossed (surface_layer.py)
 SKLEARN_LIB = Path(__file__).resolve().parents[2] / '.sklearn-lib'
 SKLEARN = ('scikit-learn==1.9.1', 'joblib==1.6.0', 'threadpoolctl==3.8.0', 'narwhals==2.29.0',
            'cloudpickle==3.1.3')
 OCCUPIED = 0.8         # the maps' occupied cells: probability over this
 SURFACE = 0.005        # m: a cell centre this near the true surface is surface
 THRESHOLDS = (0.9, 0.93, 0.95, 0.97)
-VETO_RESCUE = ((0.3, None), (None, 0.97), (0.2, 0.97), (0.3, 0.97), (0.3, 0.98))
+# (veto under, rescue over): the map's rule (cell_judge.py: a veto where the neighbourhood was
+# explored) with other thresholds; 0 / 1: none
+VETO_RESCUE = ((0.3, 1.0), (0.0, 0.97), (0.3, 0.97), (0.1, 0.97), (0.3, 0.98))
 
 
-def _box_sum(grid: np.ndarray, radius: int) -> np.ndarray:
-    """Sum over the (2 radius + 1)^3 box around each cell, zero outside the grid."""
-    size = 2 * radius + 1
-    return np.asarray(ndimage.uniform_filter(grid, size=size, mode='constant') * size ** 3)
-
-
-def cell_features(grid: OccupancyGrid) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
-    """(feature names, features (N, F), the pool's cell indices (N, 3), the shipped map's
-    occupied flags (N,)) of the pool cells of a map (``grid``, as loaded), from its path
-    model evidence before the rules (``touch_evidence``)."""
-    evidence = np.asarray(grid.touch_evidence, dtype=float)
-    n = evidence.shape[0]
-    judged = evidence >= POOL_TOUCHES
-    pool = np.argwhere(judged)
-    i, j, k = pool.T
-    e = evidence[i, j, k]
-    # the local plane of the 7^3 box (capped evidence as weights), as surface_layer.py fits it
-    weight = np.minimum(evidence, WEIGHT_CAP)
-    axes = np.indices(evidence.shape).astype(float)
-    total = _box_sum(weight, 3)[i, j, k]
-    mean = np.stack([_box_sum(weight * axes[a], 3)[i, j, k] for a in range(3)], axis=1) / total[:, None]
-    cov = np.empty((len(pool), 3, 3))
-    for a in range(3):
-        for b in range(a, 3):
-            cov[:, a, b] = cov[:, b, a] = (_box_sum(weight * axes[a] * axes[b], 3)[i, j, k] / total
-                                           - mean[:, a] * mean[:, b])
-    spread, vectors = np.linalg.eigh(cov)
-    spread = np.maximum(spread, 1e-9)
-    towards = mean - pool                      # the evidence's centroid, from the cell (cells)
-    along = np.einsum('ij,ij->i', towards, vectors[:, :, 0])
-    normal = vectors[:, :, 0] * np.where(along >= 0, 1.0, -1.0)[:, None]   # towards it
-
-    def evidence_at(steps: float) -> np.ndarray:
-        at = np.rint(pool + normal * steps).astype(int)
-        inside = ((at >= 0) & (at < n)).all(axis=1)
-        out = np.zeros(len(pool))
-        out[inside] = evidence[tuple(at[inside].T)]
-        return out
-
-    level = _box_sum(evidence ** 2, 3)[i, j, k] / np.maximum(_box_sum(evidence, 3)[i, j, k], 1e-9)
-    air = ((evidence > 0) & (evidence < AIR_TOUCHES)).astype(float)
-    touched = (evidence >= 1.0).astype(float)
-    unvisited = (evidence == 0).astype(float)
-    hits = np.maximum(grid.hits[i, j, k], 1).astype(float)
-    # where in the cell its touches were, from its centre (cells; 0 for a cell a path crossed
-    # between two samples, which holds no touch of its own)
-    own = (grid.contact_centroids(judged) - grid.spec.cell_centres(pool)) / grid.spec.resolution
-    # the air's summed direction within 2 cells, along the normal
-    lean = np.zeros((len(pool), 3))
-    for offset in np.argwhere(np.ones((5, 5, 5))) - 2:
-        if not offset.any():
-            continue
-        at = pool + offset
-        inside = ((at >= 0) & (at < n)).all(axis=1)
-        hit = np.zeros(len(pool), bool)
-        hit[inside] = air[tuple(at[inside].T)] > 0
-        lean[hit] += offset / np.linalg.norm(offset)
-    lean_norm = np.linalg.norm(lean, axis=1)
-    strongest = ndimage.maximum_filter(evidence, size=5, mode='constant')[i, j, k]
-    lean_along = np.einsum('ij,ij->i', lean, normal) / np.maximum(lean_norm, 1e-9)
-    columns = {
-        'share_of_level': e / np.maximum(level, 1e-9),
-        'share_of_max5': e / np.maximum(strongest, 1e-9),
-        **{f'along_{s}': evidence_at(s) / e for s in (1, 2, 3, 4)},
-        'along_max': np.max([evidence_at(s) for s in (1, 1.5, 2, 2.5, 3, 4, 5)], axis=0) / e,
-        'flatness': spread[:, 0] / spread[:, 1],
-        'breadth': spread[:, 1] / spread[:, 2],
-        'off_middle': np.abs(along),
-        'centroid_distance': np.linalg.norm(towards, axis=1),
-        'touches_along': np.einsum('ij,ij->i', own, normal),
-        'touches_off_centre': np.linalg.norm(own, axis=1),
-        'air_lean': np.where(lean_norm > 0, lean_along, 0.0),
-        **{f'air_{r}': _box_sum(air, r)[i, j, k] for r in (1, 2)},
-        **{f'unvisited_{r}': _box_sum(unvisited, r)[i, j, k] for r in (1, 2, 3)},
-        **{f'touched_{r}': _box_sum(touched, r)[i, j, k] for r in (1, 2, 3)},
-        'evidence_per_hit': e / hits,
-    }
-    occupied = grid.probabilities()[i, j, k] > OCCUPIED
-    return list(columns), np.column_stack(list(columns.values())), pool, occupied
+def cell_features(grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(features (N, F), the pool's cell indices (N, 3), the rules' probabilities (N,)) of a
+    map (``grid``, as loaded, built without the judge) by the judge's own features."""
+    pool, features = pool_features(grid.touch_evidence, grid.hits, grid.contact_sum,
+                                   grid.spec.origin, grid.spec.resolution)
+    return features, pool, grid.probabilities()[tuple(pool.T)]
 
 
 def sklearn_ready() -> bool:
@@ -174,7 +101,10 @@ class Session:
         truth = load_truth(bag.parent / f'{bag.name}_truth.npz')
         self.surface = surface_truth(truth, EXPLORED_RADIUS)
         grid, _ = load_npz(maps / f'{bag.name}.npz')
-        self.names, self.features, pool, self.shipped = cell_features(grid)
+        self.features, pool, self.rules = cell_features(grid)
+        self.shipped = self.rules > OCCUPIED
+        self.explored = explored(self.features)
+        self.clamp = (grid.model.clamp_min, grid.model.clamp_max)
         self.centres = grid.spec.cell_centres(pool)
         self.lattice = grid.spec.lattice()
         self.labels = self.surface.distance(self.centres)[0] <= SURFACE
@@ -202,6 +132,25 @@ def classifier(sessions: list[Session]):
     return model.fit(features, labels, sample_weight=weights)
 
 
+def ensemble(model) -> TreeEnsemble:
+    """A fitted HistGradientBoostingClassifier as the map's :class:`TreeEnsemble`."""
+    trees = [predictors[0].nodes for predictors in model._predictors]
+    starts = np.cumsum([0] + [len(t) for t in trees[:-1]])
+    nodes = np.concatenate(trees)
+    offset = np.repeat(starts, [len(t) for t in trees])
+    leaf = nodes['is_leaf'].astype(bool)
+    own = np.arange(len(nodes))
+    if nodes['is_categorical'].any() or not np.isfinite(nodes['num_threshold'][~leaf]).all():
+        raise ValueError('the classifier has categorical or missing-value splits')
+    return TreeEnsemble(
+        feature=np.where(leaf, 0, nodes['feature_idx']).astype(np.int64),
+        threshold=np.where(leaf, 0.0, nodes['num_threshold']),
+        left=np.where(leaf, own, nodes['left'] + offset).astype(np.int64),
+        right=np.where(leaf, own, nodes['right'] + offset).astype(np.int64),
+        value=np.where(leaf, nodes['value'], 0.0), roots=starts.astype(np.int64),
+        baseline=float(np.asarray(model._baseline_prediction).ravel()[0]), features=FEATURES)
+
+
 def mapped(folder: Path, maps: Path, jobs: int) -> list[Session]:
     """The folder's sessions, each mapped by build_map into ``maps`` (a kept map is reused)."""
     bags = sorted(p for p in folder.iterdir() if p.is_dir() and (p.parent / f'{p.name}_truth.npz').exists())
@@ -209,7 +158,8 @@ def mapped(folder: Path, maps: Path, jobs: int) -> list[Session]:
     out.mkdir(parents=True, exist_ok=True)
     todo = [b for b in bags if not (out / f'{b.name}.npz').exists()]
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        list(pool.map(lambda bag: score(bag, out, []), todo))
+        # the rules alone: the judge's training and its baseline
+        list(pool.map(lambda bag: score(bag, out, ['cell_judge=false']), todo))
     return [Session(b, out) for b in bags]
 
 
@@ -239,6 +189,9 @@ def main() -> int:
                              'sessions (without those of the same draw)')
     parser.add_argument('--keep', type=Path, help='keep the maps in this folder (and reuse them)')
     parser.add_argument('--jobs', type=int, default=2)
+    parser.add_argument('--export', type=Path,
+                        help='write the classifier of all training sessions here, as the map '
+                             'reads it (inhand_mapping/cell_judge_model.npz is the default\'s)')
     args = parser.parse_args()
     folders = [Path(f) for f in args.train.split(',')]
     checks = [Path(f) for f in args.check.split(',')]
@@ -271,19 +224,34 @@ def main() -> int:
                   file=sys.stderr, flush=True)
         return np.asarray(models[left_out].predict_proba(session.features)[:, 1])
 
+    if args.export:
+        model = classifier(everyone)
+        exported = ensemble(model)
+        rows = np.vstack([s.features for s in everyone])
+        gap = np.abs(exported.probability(rows) - model.predict_proba(rows)[:, 1]).max()
+        if gap > 1e-9:
+            print(f'bench_cell_judge: the exported trees differ from the classifier by {gap}',
+                  file=sys.stderr)
+            return 1
+        exported.save(args.export)
+        print(f'# the classifier of all {len(everyone)} training sessions written to '
+              f'{args.export} ({len(exported.feature)} nodes)', flush=True)
     groups = {name: (v, [judge(s) for s in v]) for name, v in {**train, **check}.items()}
     print('# each session judged by the classifier of the training sessions of other draws')
-    report('shipped', groups, lambda s, p: s.shipped)
+    report('the rules alone', groups, lambda s, p: s.shipped)
     for t in THRESHOLDS:
         report(f'the judge alone, p > {t}', groups, lambda s, p, t=t: p > t)
     for veto, rescue in VETO_RESCUE:
         label = ' and '.join(x for x in (f'veto p < {veto}' if veto else '',
-                                         f'rescue p > {rescue}' if rescue else '') if x)
+                                         f'rescue p > {rescue}' if rescue < 1 else '') if x)
 
         def choose(s: Session, p: np.ndarray, veto=veto, rescue=rescue) -> np.ndarray:
-            kept = s.shipped & (p >= veto) if veto else s.shipped.copy()
-            return kept | (p > rescue) if rescue else kept
-        report(f'shipped, {label}', groups, choose)
+            overridden, verdict = verdicts(p, s.explored, s.rules, s.clamp, veto, rescue)
+            taken = s.shipped.copy()
+            taken[overridden] = verdict > OCCUPIED
+            return taken
+        mark = ' (the map\'s)' if (veto, rescue) == (VETO, RESCUE) else ''
+        report(f"the rules, {label}{mark}", groups, choose)
     print(f'\n{time.monotonic() - started:.0f} s')
     return 0
 

@@ -84,6 +84,8 @@ BEFORE_PATH_MODEL = {'touch_model': 'samples'}
 # Maps saved before the surface layer (surface_layer.py) were read without it, and their
 # transits fell off with the square of the speed.
 BEFORE_SURFACE_LAYER = {'layer_factor': 1.0, 'transit_falloff': 2.0, 'sheet_gain': 1.0}
+# Maps saved before the cell judge (cell_judge.py) were read without it.
+BEFORE_CELL_JUDGE = {'cell_judge': False}
 Colours: TypeAlias = NDArray[np.uint8]     # (M, 3) RGB per cell
 LOCAL_MAPS = ('touch', 'vision')            # the local maps an NPZ may keep beside the global
 
@@ -187,6 +189,10 @@ def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
     # evidence is not the touch map's, and its file keeps the touch map's log-odds only.
     if grid.touch_evidence is not None and 'touch' not in (local_maps or {}):
         arrays['touch_evidence'] = grid.touch_evidence
+        # and where the cell judge overrode the layer, with what it replaced: resumed, the
+        # map goes on from the layer's values there (occupancy.OccupancyGrid.judged)
+        if grid.judged is not None:
+            arrays['judged_cells'], arrays['judged_rules'] = grid.judged
     with write(target) as stream:
         np.savez_compressed(stream, **arrays)  # type: ignore[arg-type]
     return target
@@ -201,7 +207,8 @@ def load_npz(path: FilePath) -> tuple[OccupancyGrid, dict[str, Any]]:
         with data:
             metadata: dict[str, Any] = json.loads(bytes(data['metadata']).decode())
             arrays = {k: data[k] for k in ('log_odds', 'hits', 'first_touch')}
-            for optional in ('touch_evidence', 'contact_sum'):   # absent from earlier maps
+            for optional in ('touch_evidence', 'contact_sum', 'judged_cells', 'judged_rules'):
+                # absent from earlier maps
                 if optional in data.files:
                     arrays[optional] = data[optional]
     except _UNREADABLE as error:
@@ -243,7 +250,14 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
     spec = GridSpec(float(metadata['size']), float(metadata['resolution']),
                     (centre[0], centre[1], centre[2]))
     kinds = {'log_odds': 'f', 'hits': 'ui', 'first_touch': 'f', 'touch_evidence': 'f',
-             'contact_sum': 'f'}
+             'contact_sum': 'f', 'judged_cells': 'ui', 'judged_rules': 'f'}
+    judged = [arrays.pop(name) for name in ('judged_cells', 'judged_rules') if name in arrays]
+    if len(judged) == 2 and 'touch_evidence' in arrays:
+        for name, array in zip(('judged_cells', 'judged_rules'), judged):
+            if array.ndim != 1 or array.dtype.kind not in kinds[name]:
+                raise ValueError(f'{name} is {array.dtype} {array.shape}, not a list')
+    else:
+        judged = []       # a half: the verdicts are made again, from the evidence
     for name, array in arrays.items():
         shape = (*spec.shape, 3) if name == 'contact_sum' else spec.shape
         if array.shape != shape or array.dtype.kind not in kinds[name]:
@@ -258,7 +272,7 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
                                 arrays['hits'].max() > np.iinfo(np.uint32).max):
         raise ValueError('hits outside 0..2^32-1')
     # The path model's parameters, absent from earlier maps, take their defaults.
-    known = {**BEFORE_PATH_MODEL, **BEFORE_SURFACE_LAYER, **metadata}
+    known = {**BEFORE_PATH_MODEL, **BEFORE_SURFACE_LAYER, **BEFORE_CELL_JUDGE, **metadata}
     model = SensorModel(**{field.name: _typed(field.name, known[field.name], field.default)
                            for field in fields(SensorModel) if field.name in known})
     counts = IntegrationCounts(**metadata['counts'])
@@ -275,7 +289,8 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
         grid.contact_sum[tuple(hit.T)] = spec.cell_centres(hit) * grid.hits[tuple(hit.T)][:, None]
     grid.refresh()
     if 'touch_evidence' in arrays:
-        grid.restore_touch_evidence(arrays['touch_evidence'])
+        grid.restore_touch_evidence(arrays['touch_evidence'],
+                                    (judged[0], judged[1]) if judged else None)
     grid.counts = counts
     return grid
 

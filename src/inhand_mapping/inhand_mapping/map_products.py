@@ -103,6 +103,6 @@ def resume_from(grid: OccupancyGrid, path: Path) -> str:
     local = load_local_maps(path)
     grid.show(local.get('touch', saved.log_odds), saved)
     if 'touch' not in local and saved.touch_evidence is not None:
-        grid.restore_touch_evidence(saved.touch_evidence)
+        grid.restore_touch_evidence(saved.touch_evidence, saved.judged)
     return (f'{int(saved.hits.sum())} hits in {int(np.count_nonzero(saved.hits))} cells from '
             f'{path}')

@@ -119,6 +119,10 @@ OCCUPANCY_PARAMETERS = (
               'evidence, with no stronger cell along its normal and at least 1 touch, counts '
               'its evidence (one pass over a surface the map confirms is enough; '
               'surface_layer.py); 1: off', minimum=1.0, maximum=4.0),
+    ParamSpec('cell_judge', True, 'path model: a learned judge of each touched cell '
+              '(cell_judge.py) sets the probability of the cells it is sure of: under 0.3 '
+              '(a hover, a lift) or over 0.97 (a wall the rules held back); false: the '
+              'surface layer\'s rules alone'),
     ParamSpec('occupied_threshold', 0.8, 'Cells above this probability are occupied '
               '(occupancy/occupied, centre of mass, PLY)', minimum=0.5, maximum=0.999),
     ParamSpec('publish_rate', 2.0, 'Map publications per second (only when it changed)',
@@ -154,8 +158,9 @@ OCCUPANCY_PARAMETERS = (
 # copy of the map with its clouds), measured with tracemalloc on 100^3 cells: 158 without
 # fusion, 241 with a vision map fused by product, 246 by entropy; then 24 more for each
 # grid that keeps contact sums (OccupancyGrid.contact_sum): the map and its settled copy,
-# and with fusion the touch map too.
-BYTES_PER_CELL = {'none': 210, 'fusion': 325}
+# and with fusion the touch map too; then 18 more for each grid's cell judge (cell_judge.py:
+# its verdicts, their flags and two scratch arrays), the same grids.
+BYTES_PER_CELL = {'none': 246, 'fusion': 379}
 
 
 def memory_problem(cells_per_axis: int, fusion: str, available: int | None) -> str | None:
@@ -280,7 +285,7 @@ class OccupancyConfig:
                             values['touch_model'], values['transit_speed'],
                             values['speed_context'], values['pass_time'],
                             values['layer_factor'], values['transit_falloff'],
-                            values['sheet_gain'])
+                            values['sheet_gain'], values['cell_judge'])
         return cls(grid=grid, model=model,
                    occupied_threshold=float(values['occupied_threshold']),
                    publish_rate=float(values['publish_rate']),

@@ -64,6 +64,7 @@ from inhand_common.array_types import Bools, CellFloats, CellHits, FingerIds, Fl
 from inhand_common.cell_lattice import Lattice
 from inhand_common.contact_centroids import centroids
 from inhand_mapping import occupancy_kernels as kernels
+from inhand_mapping.cell_judge import CellJudge
 from inhand_mapping.dwell import DwellWeights, WeightedSamples
 from inhand_mapping.touch_paths import TouchPaths
 
@@ -175,6 +176,7 @@ class SensorModel:
     layer_factor: float = 0.4  # path model: evidence kept by the layer above the surface (1: off)
     transit_falloff: float = 6.0  # path model: evidence faster than that: (transit_speed / v)^this
     sheet_gain: float = 1.75  # path model: evidence of a cell of a flat sheet counts this often
+    cell_judge: bool = True  # path model: the learned judge overrides the rules where sure
 
     def __post_init__(self) -> None:
         if self.neighbourhood not in (1, 27):
@@ -196,6 +198,8 @@ class SensorModel:
             raise ValueError(f'transit_falloff must be at least 1, not {self.transit_falloff}')
         if not 0.0 <= self.layer_factor <= 1.0:
             raise ValueError(f'layer_factor must be in [0, 1], not {self.layer_factor}')
+        if not isinstance(self.cell_judge, bool):
+            raise ValueError(f'cell_judge must be true or false, not {self.cell_judge!r}')
         if not 0.0 < self.clamp_min < self.prior < self.clamp_max < 1.0:
             raise ValueError('need 0 < clamp_min < prior < clamp_max < 1')
         # sigma squared, not sigma: eq. 3 divides by it (2e-285 m passed "> 0" and its
@@ -272,6 +276,9 @@ class OccupancyGrid:
             speed_context=model.speed_context,
             pass_time=model.pass_time, visit_gap=model.visit_gap,
             layer_factor=model.layer_factor, sheet_gain=model.sheet_gain) if path_model else None
+        # The cell judge's verdicts, over the surface layer's map (cell_judge.py).
+        self._judge = (CellJudge(spec.shape, spec.origin, spec.resolution)
+                       if path_model and model.cell_judge else None)
 
     @property
     def log_odds(self) -> CellFloats:
@@ -292,19 +299,58 @@ class OccupancyGrid:
         view.flags.writeable = False
         return view
 
-    def restore_touch_evidence(self, evidence: ArrayLike) -> None:
+    def restore_touch_evidence(self, evidence: ArrayLike,
+                               judged: tuple[ArrayLike, ArrayLike] | None = None) -> None:
         """Take the path model's evidence of a saved map (``touch_evidence``), whose
         log-odds this grid holds already: touches go on from it exactly (without it they go
-        on from the evidence the log-odds give). Nothing for the samples model."""
-        if self._paths is not None:
-            self._paths.restore(np.asarray(evidence, dtype=float))
+        on from the evidence the log-odds give). ``judged``: the map's ``judged`` as saved
+        (without it, a cell the judge overrode keeps that value as the layer's until the
+        layer recomputes it). Nothing for the samples model."""
+        if self._paths is None:
+            return
+        if self._judge is not None and judged is not None:
+            self._judge.resume(*judged)
+            # the layer's neighbours lend their support as the layer showed them, not as
+            # the judge did (TouchPaths.follow)
+            shown = self._log_odds.copy()
+            shown.reshape(-1)[self._judge.overridden] = self._judge.rules
+            self._paths.follow(shown)
+        self._paths.restore(np.asarray(evidence, dtype=float))
+
+    @property
+    def judged(self) -> tuple[NDArray[np.intp], Floats] | None:
+        """(flat indices of the cells whose probability the cell judge set, the surface
+        layer's log-odds it replaced), or None without the judge (cell_judge.py)."""
+        if self._judge is None:
+            return None
+        self.apply_layer()
+        return self._judge.overridden, self._judge.rules
 
     def apply_layer(self) -> None:
         """Bring the cells around what changed since the last read up to date with the path
-        model's surface layer (surface_layer.py). ``log_odds`` and ``probabilities()`` do
+        model's surface layer (surface_layer.py), and then with the cell judge
+        (cell_judge.py) where the model has it. ``log_odds`` and ``probabilities()`` do
         this; code that reads ``cell_arrays`` directly calls it first."""
-        if self._paths is not None:
+        if self._paths is None:
+            return
+        counts = self._paths.counts
+        if self._judge is None or not counts.n_dirty[0]:
             self._paths.apply_layer()
+            return
+        # The judge judges the layer's map: its overrides are taken back first, the layer
+        # brought up to date, then the cells near what changed judged again.
+        changed = counts.dirty[:counts.n_dirty[0]].copy()
+        flat_log_odds, flat_probability = self.cell_arrays.log_odds, self.cell_arrays.probability
+        self._judge.undo(flat_log_odds, flat_probability)
+        self._paths.apply_layer()
+        self._judge.update(self._paths.evidence, self.hits, self.contact_sum, changed)
+        self._judge.apply(flat_log_odds, flat_probability,
+                          (self.model.clamp_min, self.model.clamp_max))
+
+    def _forget_judged(self) -> None:
+        """The log-odds were set from outside (a map loaded or shown): they are the map."""
+        if self._judge is not None:
+            self._judge.forget()
 
     # ------------------------------------------------------------------ update
     def integrate(self, points: ArrayLike, times: ArrayLike | None = None,
@@ -364,6 +410,8 @@ class OccupancyGrid:
         if self._paths is not None:
             assert settled._paths is not None
             settled._paths.take_state(self._paths)
+            if self._judge is not None:
+                settled._judge = self._judge.copy()
         elif self._dwell is not None:
             settled._visit_state(self._visit_last.shape[0])
             settled._visit_last[...] = self._visit_last
@@ -487,6 +535,7 @@ class OccupancyGrid:
 
     def refresh(self) -> None:
         """Recompute what is derived from the arrays after they were set directly (loading)."""
+        self._forget_judged()
         self._probability[...] = probability(self.log_odds)
         if self._paths is not None:
             self._paths.follow(self.log_odds)
@@ -537,6 +586,7 @@ def warm_up(model: SensorModel, resolution: float) -> None:
     stroke = np.linspace(-2.0, 2.0, count)[:, None] * resolution * np.array([[1.0, 0.5, 0.0]])
     grid.integrate(stroke, times, np.arange(count) % 3)
     grid.held_points()
+    grid.probabilities()                            # the surface layer's and the judge's
     grid.integrate(stroke[:2])                      # untimed points take their own kernel
     grid.flush()
-    grid.probabilities()                            # the surface layer's kernel
+    grid.probabilities()                            # the judge around what changed
