@@ -74,6 +74,20 @@ def test_installed_simulator_finds_its_shipped_meshes(colcon_install, tmp_path):
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+def test_installed_mapping_reads_its_cell_judge(colcon_install, tmp_path):
+    """The map's learned judge is package data (inhand_mapping/cell_judge_model.npz): an
+    installed inhand_mapping reads it from the install, not from the source tree."""
+    site = [str(p) for p in colcon_install.glob('*/lib/python3*/site-packages')]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(site))
+    code = ('from inhand_mapping.cell_judge import MODEL_FILE, shipped_judge; '
+            'print(MODEL_FILE, len(shipped_judge().roots))')
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            timeout=120, env=env, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    where, trees = result.stdout.split()
+    assert where.startswith(str(colcon_install)) and int(trees) > 0, result.stdout
+
+
 def test_colcon_meta_gives_each_package_its_tests():
     colcon = os.path.join(os.path.dirname(sys.executable), 'colcon')
     result = subprocess.run([colcon, '--log-base', os.devnull, 'info', 'polhemus_liberty'],
