@@ -18,8 +18,8 @@ It is sure only at its ends, and only there it overrides the rules (``apply``):
   cells of its 7^3 box never visited). A trace alone in unexplored space has no surface
   beside it to be told from; the judge learned on sessions explored for minutes, where such
   a trace is mostly a lift, and vetoed the true cells of a sparse session (a sphere slid
-  over from spot to spot for 6 s: 59 occupied cells, none off the surface, 39 after the
-  veto, at p 0.001-0.06). There the rules' judgement stands;
+  over from spot to spot for 6 s: 59 occupied cells, none off the surface, 23 vetoed at p
+  0.001-0.28). There the rules' judgement stands;
 - **rescue**: a pool cell it gives over ``RESCUE`` (0.97) takes the judge's probability
   where the rules gave it less, and is occupied (a thinly touched stretch of surface the
   rules' sheet test held back, a wall's other side).
