@@ -39,6 +39,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from inhand_common.contact_centroids import centroids
+from inhand_common.log_odds import logit
+from inhand_common.log_odds import probability as probability_of
 from inhand_mapping.occupancy_kernels import _compiled
 
 POOL_TOUCHES = 0.5     # cells with at least this evidence are judged (the bridge's least)
@@ -177,20 +180,21 @@ def pool_features(evidence: ArrayLike, hits: ArrayLike, contact_sum: ArrayLike,
     normal = vectors[:, :, 0] * np.where(along >= 0, 1.0, -1.0)[:, None]   # towards it
 
     def evidence_at(steps: float) -> NDArray[np.float64]:
-        cells = np.rint(pool + normal * steps).astype(np.int64)
-        inside = ((cells >= 0) & (cells < shape)).all(axis=1)
-        out = np.zeros(len(cells))
-        out[inside] = evidence[tuple(cells[inside].T)]
+        at = np.rint(pool + normal * steps).astype(np.int64)
+        inside = ((at >= 0) & (at < shape)).all(axis=1)
+        out = np.zeros(len(at))
+        out[inside] = evidence[tuple(at[inside].T)]
         return out
+
+    along_normal = {s: evidence_at(s) for s in (1, 1.5, 2, 2.5, 3, 4, 5)}
 
     level = column['squares'] / np.maximum(column['total'], 1e-9)
     # where in the cell its touches were, from its centre (cells; 0 for a cell a path
     # crossed between two samples, which holds no hit of its own)
-    pool_hits = np.asarray(hits)[i, j, k].astype(float)
-    cell_hits = np.maximum(pool_hits, 1.0)
+    pool_hits = np.asarray(hits)[i, j, k]
     centres = np.asarray(origin, dtype=float) + (pool + 0.5) * resolution
-    own = np.where(pool_hits[:, None] > 0, np.asarray(contact_sum, dtype=float)[i, j, k]
-                   / cell_hits[:, None] - centres, 0.0) / resolution
+    own = (centroids(centres, np.asarray(contact_sum)[i, j, k], pool_hits) - centres) / resolution
+    cell_hits = np.maximum(pool_hits, 1).astype(float)
     # the air's summed direction within 2 cells, along the normal
     lean = sums[:, 21:24]
     lean_norm = np.linalg.norm(lean, axis=1)
@@ -199,8 +203,8 @@ def pool_features(evidence: ArrayLike, hits: ArrayLike, contact_sum: ArrayLike,
     columns = {
         'share_of_level': e / np.maximum(level, 1e-9),
         'share_of_max5': e / np.maximum(strongest, 1e-9),
-        **{f'along_{s}': evidence_at(s) / e for s in (1, 2, 3, 4)},
-        'along_max': np.max([evidence_at(s) for s in (1, 1.5, 2, 2.5, 3, 4, 5)], axis=0) / e,
+        **{f'along_{s}': along_normal[s] / e for s in (1, 2, 3, 4)},
+        'along_max': np.max(list(along_normal.values()), axis=0) / e,
         'flatness': spread[:, 0] / spread[:, 1],
         'breadth': spread[:, 1] / spread[:, 2],
         'off_middle': np.abs(along),
@@ -335,7 +339,7 @@ def _pool_near(changed: NDArray[np.int64], evidence: NDArray[np.float64], n: int
 class CellJudge:
     """The judge's verdicts on one grid's cells, kept up to date as its evidence changes,
     and the map's probabilities they override (occupancy.py calls it around the surface
-    layer). Its arrays are flat views of the grid's, (n^3,)."""
+    layer). The map's arrays it is given, and its own, are flat (n^3,)."""
 
     def __init__(self, shape: tuple[int, int, int], origin: ArrayLike, resolution: float,
                  judge: TreeEnsemble | None = None):
@@ -383,7 +387,7 @@ class CellJudge:
             raise ValueError(f'a cell overridden outside the {len(self.sure)} cells')
         if not np.isfinite(self.rules).all():
             raise ValueError('the log-odds the verdicts replaced hold NaN or infinity')
-        self.rules_probability = 1.0 / (1.0 + np.exp(-self.rules))
+        self.rules_probability = probability_of(self.rules)
         self.stale = True
 
     def undo(self, log_odds: NDArray[np.float64], probability: NDArray[np.float64]) -> None:
@@ -425,8 +429,8 @@ class CellJudge:
         self.overridden = judged[overridden]
         self.rules = log_odds[self.overridden].copy()
         self.rules_probability = probability[self.overridden].copy()
-        log_odds[self.overridden] = np.log(verdict / (1.0 - verdict))
-        probability[self.overridden] = 1.0 / (1.0 + np.exp(-log_odds[self.overridden]))
+        log_odds[self.overridden] = logit(verdict)
+        probability[self.overridden] = probability_of(log_odds[self.overridden])
 
 
 def explored(rows: NDArray[np.float64]) -> NDArray[np.bool_]:

@@ -63,6 +63,7 @@ from numpy.typing import ArrayLike, NDArray
 from inhand_common.array_types import Bools, CellFloats, CellHits, FingerIds, Floats, Points, Times
 from inhand_common.cell_lattice import Lattice
 from inhand_common.contact_centroids import centroids
+from inhand_common.log_odds import logit, probability
 from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.cell_judge import CellJudge
 from inhand_mapping.dwell import DwellWeights, WeightedSamples
@@ -73,16 +74,6 @@ __all__ = ['DISTANCES', 'TOUCH_MODELS', 'GridSpec', 'IntegrationCounts', 'Occupa
 
 DISTANCES = ('cell', 'centre')
 TOUCH_MODELS = ('path', 'samples')
-
-
-def logit(p: ArrayLike) -> Floats:
-    p = np.asarray(p, dtype=float)
-    return np.log(p / (1.0 - p))
-
-
-def probability(log_odds: ArrayLike) -> Floats:
-    p: Floats = 1.0 / (1.0 + np.exp(-np.asarray(log_odds, dtype=float)))
-    return p
 
 
 @dataclass(frozen=True)
