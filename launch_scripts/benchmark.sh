@@ -56,7 +56,7 @@
 #                      superquadrics explored by the simulator, static and tracked: parts,
 #                      size/exponent/centre errors, Chamfer against the classic fit and the
 #                      dense-truth fit, times (test/benchmarks/bench_shape.py: --shapes,
-#                      --modes, --keep DIR, --duration S)
+#                      --modes, --keep DIR, --duration S, --seeds N, --set NAME=VALUE)
 #   explore            guided exploration (the predicted surface's next touches) against random
 #                      and coverage-greedy: map and completed-surface F@5mm of the whole true
 #                      surface after 10-80 strokes, the prediction's calibration and cost

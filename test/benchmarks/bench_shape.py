@@ -6,6 +6,7 @@ Run from the workspace root with the workspace's environment::
     .venv/bin/python test/benchmarks/bench_shape.py [--shapes NAME ...] [--modes static tracked]
                                                     [--keep DIR] [--duration S] [--stereo] [--centres-only]
                                                     [--other-hand] [--hand NAME=VALUE ...]
+                                                    [--set NAME=VALUE ...] [--seeds N ...]
 
 Each object of ``inhand_shape.known_shapes`` (single superquadrics from box-like to
 diamond-like at 3-15 cm, and two- and three-part objects) is meshed, explored by
@@ -34,7 +35,9 @@ config/stereo.yaml`` (touch + one stereo pair). Per session it prints:
   graspable part named is the handle.
 
 Seeds (``--seeds``, default 7 8): 7 are the sessions the defaults were chosen on, 8 the ones
-reported; each gets its own summary.
+reported; each gets its own summary. ``--set NAME=VALUE`` maps every session with that
+mapping parameter (``build_map --set``; ``cell_judge=false``: the touch rules alone), its
+maps in a folder of their own beside the kept sessions.
 """
 
 from __future__ import annotations
@@ -101,7 +104,8 @@ def _axis_errors(fit, truth) -> tuple[float, float | None, float, float | None]:
 
 
 def session(name: str, static: bool, folder: Path, duration: float, seed: int = 7,
-            focus_on_handle: bool = True, stereo: bool = False, hand: tuple[str, ...] = ()):
+            focus_on_handle: bool = True, stereo: bool = False, hand: tuple[str, ...] = (),
+            overrides: tuple[str, ...] = ()):
     """(map cells, true parts in the map frame, truth surface points in the map frame, the
     part of them the fingers touched: within ``TOUCHED_RADIUS`` of a true contact);
     ``stereo``: the session also has one stereo pair before the exploration, which
@@ -140,9 +144,14 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
     configs = ['--config', str(CONFIG / ('mapping_static.yaml' if static else 'mapping.yaml'))]
     if stereo:
         configs += ['--config', str(CONFIG / 'stereo.yaml')]
+    # maps made with other parameters go to a folder of their own: a kept folder's sessions
+    # serve every variant, and runs side by side do not write each other's maps
+    maps = folder / ('maps' if not overrides else
+                     'maps_' + hashlib.sha1(' '.join(overrides).encode()).hexdigest()[:8])
+    settings = [item for setting in overrides for item in ('--set', setting)]
     with contextlib.redirect_stdout(io.StringIO()):
-        build_map([str(bag), *configs, '--output-dir', str(folder / 'maps'), '--quiet', '--force'])
-    cells = load_map(folder / 'maps' / f'{tag}.npz')
+        build_map([str(bag), *configs, *settings, '--output-dir', str(maps), '--quiet', '--force'])
+    cells = load_map(maps / f'{tag}.npz')
     truth = load_truth(f'{bag}.truth.npz')
     if static:
         position, quaternion = pose_at(truth, truth.object_times[:1])
@@ -157,7 +166,7 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
 
 def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
             focus_on_handle: bool = True, stereo: bool = False, measured: bool = True,
-            hand: tuple[str, ...] = ()) -> dict:
+            hand: tuple[str, ...] = (), overrides: tuple[str, ...] = ()) -> dict:
     """One session's row; ``measured``: the fits take where in each cell the touches were
     (the map's contact centroids; False: the cell centres alone, as before them); ``hand``
     as for :func:`session`."""
@@ -167,7 +176,7 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     from inhand_shape.superquadric import fit_least_squares, fit_superquadric
     rng = np.random.default_rng(0)
     cells, truth_parts, surface, touched = session(name, static, folder, duration, seed,
-                                                   focus_on_handle, stereo, hand)
+                                                   focus_on_handle, stereo, hand, overrides)
     # standing on the table (static: the tracker's frame): the parts may be held upright
     up = support_normal('static' if static else 'tracked')
     result = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
@@ -301,6 +310,10 @@ def main() -> int:
                         'were (the map\'s contact centroids): the fit before them')
     parser.add_argument('--hand', action='append', default=[], metavar='NAME=VALUE',
                         help="the exploring hand's settings, as simulate_session --hand takes them")
+    parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                        dest='overrides',
+                        help='a mapping parameter for every map, as build_map --set takes it '
+                        '(cell_judge=false: the touch rules alone)')
     parser.add_argument('--other-hand', action='store_true',
                         help='the other hand of the validation-format sets (hand_sessions.py, '
                         'hand b: 3-12 cm strokes, bell-shaped speeds, hovers at 2-6 mm, 0.5 mm '
@@ -325,7 +338,8 @@ def main() -> int:
             for name in args.shapes:
                 for mode in args.modes:
                     row = measure(name, mode == 'static', folder, args.duration, seed,
-                                  not args.no_focus, args.stereo, not args.centres_only, hand)
+                                  not args.no_focus, args.stereo, not args.centres_only, hand,
+                                  tuple(args.overrides))
                     _print_row(row)
                     rows.append(row)
     for seed in args.seeds:
