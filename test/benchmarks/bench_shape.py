@@ -144,8 +144,8 @@ def session(name: str, static: bool, folder: Path, duration: float, seed: int = 
     configs = ['--config', str(CONFIG / ('mapping_static.yaml' if static else 'mapping.yaml'))]
     if stereo:
         configs += ['--config', str(CONFIG / 'stereo.yaml')]
-    # maps made with other parameters go to a folder of their own: a kept folder's sessions
-    # serve every variant, and runs side by side do not write each other's maps
+    # maps made with other parameters (``overrides``, build_map --set) go to a folder of their
+    # own: a kept folder's sessions serve every variant without one's maps replacing another's
     maps = folder / ('maps' if not overrides else
                      'maps_' + hashlib.sha1(' '.join(overrides).encode()).hexdigest()[:8])
     settings = [item for setting in overrides for item in ('--set', setting)]
@@ -169,7 +169,8 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
             hand: tuple[str, ...] = (), overrides: tuple[str, ...] = ()) -> dict:
     """One session's row; ``measured``: the fits take where in each cell the touches were
     (the map's contact centroids; False: the cell centres alone, as before them); ``hand``
-    as for :func:`session`."""
+    and ``overrides`` (mapping parameters, as ``build_map --set`` takes them) as for
+    :func:`session`."""
     from inhand_shape.known_shapes import KNOWN_SHAPES
     from inhand_shape.shape_extraction import extract_shape, support_normal
     from inhand_shape.shape_parts import decompose
