@@ -262,7 +262,7 @@ class TreeEnsemble:
         raw = np.empty(len(x))
         _leaf_sums(x, self.feature, self.threshold, self.left, self.right, self.value,
                    self.roots, raw)
-        return np.asarray(1.0 / (1.0 + np.exp(-(self.baseline + raw))))
+        return probability_of(self.baseline + raw)
 
     def save(self, path: str | Path) -> None:
         np.savez_compressed(path, feature=self.feature, threshold=self.threshold,

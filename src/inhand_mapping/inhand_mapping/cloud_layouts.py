@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 
+from inhand_common.log_odds import probability
 from inhand_common.packed_rgb import rgb_of_colours
 from inhand_mapping import occupancy_kernels as kernels
 from inhand_mapping.occupancy import GridSpec, OccupancyGrid
@@ -166,7 +167,7 @@ def vision_cells(spec: GridSpec, log_odds: np.ndarray) -> np.ndarray:
     for axis, name in enumerate('xyz'):
         points[name] = centres[:, axis]
     points['log_odds'] = values
-    points['intensity'] = 1.0 / (1.0 + np.exp(-values.astype(np.float64)))
+    points['intensity'] = probability(values)
     return points
 
 

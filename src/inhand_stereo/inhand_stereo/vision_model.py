@@ -68,6 +68,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr  # type: ignore[import-untyped]
 
 from inhand_common.array_types import Bools, Floats, Matrix3, Vector3
+from inhand_common.log_odds import logit
+from inhand_common.log_odds import probability as probability_of
 from inhand_mapping.occupancy import GridSpec
 from inhand_stereo.vision_kernels import depth_surface, expose_grid
 
@@ -178,8 +180,7 @@ class VisionModel:
                  ) -> Floats:
         """The clamped log-odds update of one observation."""
         p = np.clip(self.probability(delta, d, spread), self.p_free, self.p_occupied)
-        update: Floats = np.log(p / (1.0 - p))
-        return update
+        return logit(p)
 
 
 def _truncated_normal_mean(mu: Floats, sigma: Floats) -> Floats:
@@ -336,8 +337,7 @@ class VisionMap:
 
     def probabilities(self) -> NDArray[np.float64]:
         """Occupancy probability of every cell (1/2 where vision says nothing)."""
-        p: NDArray[np.float64] = 1.0 / (1.0 + np.exp(-self.log_odds))
-        return p
+        return probability_of(self.log_odds)
 
     def observed_mask(self) -> Bools:
         """Cells any exposure updated."""

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from inhand_common.log_odds import probability as probability_of
 from inhand_mapping.entropy import map_entropy
 from inhand_tools.map_cells import load_fused_maps
 from inhand_tools.map_quality import SurfaceTruth
@@ -79,7 +80,7 @@ def fusion_scores(npz: Path, surface: SurfaceTruth, visible: np.ndarray | None,
     results = {}
     for name, log_odds in (('touch', fused.touch), ('vision', fused.vision),
                            ('global', fused.global_)):
-        probability = 1.0 / (1.0 + np.exp(-log_odds))
+        probability = probability_of(log_odds)
         occupied = probability > threshold
         scores = map_scores(fused.spec.cell_centres(np.argwhere(occupied)), surface, observed)
         scores['entropy_bits'] = map_entropy(probability)

@@ -25,6 +25,7 @@ import numpy as np
 
 from inhand_common.bag_source import BagSource
 from inhand_common.cell_lattice import Lattice, cell_indices, infer_lattice
+from inhand_common.log_odds import probability as probability_of
 
 __all__ = ['CLOUD_TOPICS', 'FusedMaps', 'Lattice', 'LocalMaps', 'MapCells', 'cell_indices',
            'infer_lattice', 'is_bag', 'load_fused_maps', 'load_local_cells', 'load_map']
@@ -119,10 +120,9 @@ def load_local_cells(path) -> LocalMaps | None:
         return None
     updated = fused.touch_observed | fused.vision_observed
 
-    def probability(log_odds: np.ndarray) -> np.ndarray:
-        return 1.0 / (1.0 + np.exp(-log_odds[updated]))
-    return LocalMaps(fused.spec.cell_centres(np.argwhere(updated)), probability(fused.touch),
-                     probability(fused.vision), probability(fused.global_))
+    return LocalMaps(fused.spec.cell_centres(np.argwhere(updated)),
+                     probability_of(fused.touch[updated]), probability_of(fused.vision[updated]),
+                     probability_of(fused.global_[updated]))
 
 
 def is_bag(path: Path) -> bool:
