@@ -190,6 +190,30 @@ def test_the_judge_changes_the_rules_map_of_an_explored_object_where_it_is_sure(
     assert (rules.touch_evidence[changed] >= POOL_TOUCHES).all()
 
 
+def test_the_layers_probabilities_are_the_map_without_the_judge_in_its_clouds_and_file(tmp_path):
+    """What the surface layer gave each cell, before the judge: the grid's, its map clouds'
+    ``layer`` field and an NPZ's read back are the map made without the judge; the judge's
+    rescue shows as cells occupied that the layer holds under the threshold."""
+    from inhand_mapping.cloud_layouts import map_cells
+    from inhand_tools.map_cells import load_map
+    judged = session_grid()
+    rules = session_grid(SensorModel(cell_judge=False))
+    touched = judged.touched_mask()
+    np.testing.assert_array_equal(touched, rules.touched_mask())
+    layer = judged.layer_probabilities()
+    np.testing.assert_allclose(layer, rules.probabilities()[touched], rtol=1e-12)
+    p = judged.cells()[1]
+    assert np.count_nonzero((p >= 0.8) & (layer < 0.8)) > 0       # rescued
+    assert np.count_nonzero(p != layer) == len(judged.layer_overrides()[0])
+    cloud = map_cells(judged)
+    np.testing.assert_array_equal(cloud['layer'], layer.astype(np.float32))
+    np.testing.assert_array_equal(cloud['intensity'], p.astype(np.float32))
+    map_io.save_npz(judged, tmp_path / 'judged.npz')
+    np.testing.assert_allclose(load_map(tmp_path / 'judged.npz').layer, layer, rtol=1e-12)
+    # without the judge, the layer is the map
+    np.testing.assert_array_equal(map_cells(rules)['layer'], map_cells(rules)['intensity'])
+
+
 def test_the_judged_map_is_the_same_however_often_and_in_what_pieces_it_is_read():
     once = session_grid().log_odds.copy()
     often = session_grid(chunks=23, read_between=True)

@@ -378,6 +378,40 @@ def test_two_separate_shapes_are_two_parts_and_one_shape_is_one():
     assert len(one.parts) == 1
 
 
+def test_the_parts_leave_out_the_cells_the_judge_rescued_and_the_mesh_keeps_them():
+    """A sphere's cells, and a second layer of cells just outside them that the map's cell
+    judge made occupied (their surface layer's probability under the threshold): the parts
+    are fitted on the sphere's own cells, at its radius; the mesh takes every occupied
+    cell. Without the layer's probabilities, the same cells make a larger sphere."""
+    from inhand_shape.shape_extraction import extract_shape, part_cells
+    rng = np.random.default_rng(11)
+    sphere = _sq((4, 4, 4), (1.0, 1.0), (0, 0, 0))
+    inner = _cells(sphere, rng)
+    outward = (inner - CENTRE) / np.linalg.norm(inner - CENTRE, axis=1)[:, None]
+    beyond = (np.floor((inner + RESOLUTION * outward) / RESOLUTION) + 0.5) * RESOLUTION
+    known = {tuple(k) for k in np.round(inner / RESOLUTION, 3)}
+    outer = np.unique(beyond[[tuple(k) not in known for k in np.round(beyond / RESOLUTION, 3)]],
+                      axis=0)
+    assert len(outer) > 0.5 * len(inner)
+    cells = np.vstack([inner, outer])
+    p = np.r_[np.full(len(inner), 0.95), np.full(len(outer), 0.97)]
+    layer = np.r_[np.full(len(inner), 0.9), np.full(len(outer), 0.6)]
+    args = (cells, p, np.ones(len(cells)), np.zeros(len(cells)))
+    with_layer = extract_shape(*args, resolution=RESOLUTION, max_parts=1, layer=layer)
+    without = extract_shape(*args, resolution=RESOLUTION, max_parts=1)
+    assert with_layer.decomposition.total_cells == len(inner)
+    assert without.decomposition.total_cells == len(cells)
+    radius = [float(np.mean(r.decomposition.parts[0].superquadric.size)) for r in (with_layer, without)]
+    assert abs(radius[0] - 0.04) < 0.0015 < abs(radius[1] - 0.04), radius
+    assert len(with_layer.mesh.faces) == len(without.mesh.faces) > 0
+    # the parts take the lower of the two probabilities; a map the judge alone made
+    # occupied is fitted whole, not refused
+    chosen, weights = part_cells(p, 0.8, layer)
+    np.testing.assert_array_equal(weights, layer[chosen])
+    everything, _ = part_cells(p, 0.8, np.zeros(len(p)))
+    assert everything.all()
+
+
 def test_no_part_is_invented_for_an_empty_map_strays_or_a_sheet():
     rng = np.random.default_rng(6)
     empty = decompose(np.zeros((0, 3)), resolution=RESOLUTION)
@@ -461,7 +495,8 @@ def test_extract_shape_fits_an_npzs_contact_centroids_and_a_plys_cells_with_thei
                                                                                       tmp_path):
     """A PLY keeps cell centres only: extract_shape fits them as cells (with their slack), as
     the library does without surface points, not as points on the surface; the NPZ of the
-    same map gives its contact centroids to the fit."""
+    same map gives its contact centroids to the fit (and its surface layer's probabilities,
+    which a PLY does not keep either)."""
     from inhand_shape.shape_extraction import extract_shape
     from inhand_tools.commands.extract_shape import write_shape_of_map
     from inhand_tools.map_cells import load_map
@@ -469,13 +504,13 @@ def test_extract_shape_fits_an_npzs_contact_centroids_and_a_plys_cells_with_thei
     sizes = {}
     for source in (bottle_map, bottle_map.with_suffix('.ply')):
         cells = load_map(source)
-        assert (cells.contact_centroids is None) == (source.suffix == '.ply')
+        assert (cells.contact_centroids is None) == (cells.layer is None) == (source.suffix == '.ply')
         assert write_shape_of_map(source, tmp_path, source.suffix[1:], parameters, quiet=True) == 0
         written = yaml.safe_load((tmp_path / f'{source.suffix[1:]}_parts.yaml').read_text())
         sizes[source.suffix] = np.array([part['size'] for part in written['parts']])
         library = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
                                 resolution=cells.lattice.resolution, origin=cells.lattice.origin,
-                                surface_points=cells.contact_centroids)
+                                surface_points=cells.contact_centroids, layer=cells.layer)
         expected = np.array([p.superquadric.size for p in library.decomposition.parts])
         assert np.allclose(sizes[source.suffix], expected, atol=1e-5), source.suffix
     assert sizes['.npz'].shape != sizes['.ply'].shape or not np.allclose(sizes['.npz'], sizes['.ply'],
@@ -606,9 +641,13 @@ def test_the_shape_node_places_the_cells_by_the_registered_positions_as_the_map_
     assert np.count_nonzero(np.linalg.norm(centroids - centres, axis=1) > 0.0005) > 0.5 * len(centres)
     # a hair towards the centre: the float32 positions stay in their cells
     positions = centres + 0.98 * (centroids - centres)
+    # the cloud's layer field: the node's parts leave out what the cell judge rescued
+    layer = grid.layer_probabilities(threshold=0.8)
+    np.testing.assert_array_equal(cloud['layer'], layer.astype(np.float32))
     expected = extract_shape(centres, probabilities, hits, first, resolution=grid.spec.resolution,
                              origin=grid.spec.origin, threshold=0.8,
-                             surface_points=np.where(hits[:, None] > 0, positions, centres))
+                             surface_points=np.where(hits[:, None] > 0, positions, centres),
+                             layer=layer)
     publisher = BackgroundNode('test_shape_positions')
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

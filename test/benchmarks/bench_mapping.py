@@ -422,6 +422,7 @@ def reference_cells(grid, threshold: float | None = None) -> np.ndarray:
     out['intensity'] = probabilities
     out['hits'] = hits
     out['first_touch'] = first - (known.min() if known.size else 0.0)
+    out['layer'] = grid.layer_probabilities(threshold=threshold)
     return out
 
 

@@ -172,7 +172,7 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     and ``overrides`` (mapping parameters, as ``build_map --set`` takes them) as for
     :func:`session`."""
     from inhand_shape.known_shapes import KNOWN_SHAPES
-    from inhand_shape.shape_extraction import extract_shape, support_normal
+    from inhand_shape.shape_extraction import extract_shape, part_cells, support_normal
     from inhand_shape.shape_parts import decompose
     from inhand_shape.superquadric import fit_least_squares, fit_superquadric
     rng = np.random.default_rng(0)
@@ -182,7 +182,8 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     up = support_normal('static' if static else 'tracked')
     result = extract_shape(cells.centres, cells.probabilities, cells.hits, cells.first_touch,
                            resolution=cells.lattice.resolution, origin=cells.lattice.origin,
-                           surface_points=cells.contact_centroids if measured else None, up=up)
+                           surface_points=cells.contact_centroids if measured else None, up=up,
+                           layer=cells.layer)
     found = [p.superquadric for p in result.decomposition.parts]
     truth_sample = surface[rng.choice(len(surface), min(len(surface), 6000), replace=False)]
     row = {'name': name, 'seed': seed, 'mode': 'static' if static else 'tracked', 'parts': len(found),
@@ -216,8 +217,8 @@ def measure(name: str, static: bool, folder: Path, duration: float, seed: int,
     row['chamfer_shown'] = float('nan') if shown_fit is None or not shown_fit.parts else \
         _chamfer([p.superquadric for p in shown_fit.parts], truth_sample, shown_rng)
     if len(truth_parts) == 1:
-        occupied = cells.probabilities >= 0.8
-        points, weights = cells.centres[occupied], cells.probabilities[occupied]
+        occupied, weights = part_cells(cells.probabilities, 0.8, cells.layer)  # as the parts
+        points = cells.centres[occupied]
         surface = cells.contact_centroids[occupied] if measured else None
         start = time.perf_counter()
         ours = fit_superquadric(points, weights, resolution=cells.lattice.resolution,

@@ -55,8 +55,11 @@ REGISTERED_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'finger', 't'],
                              'formats': ['<f4', '<f4', '<f4', 'u1', '<f8'],
                              'offsets': [0, 4, 8, 12, 16], 'itemsize': 24})
 
+# layer: the surface layer's probability, the same as intensity but where the cell judge
+# overrode it (OccupancyGrid.layer_probabilities); the shape's parts leave out the cells it
+# rescued (shape_extraction.part_cells)
 MAP_CELL_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity', '<f4'),
-                           ('hits', '<u4'), ('first_touch', '<f4')])
+                           ('hits', '<u4'), ('first_touch', '<f4'), ('layer', '<f4')])
 
 TEXTURED_CELL_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'intensity', 'rgb', 'textured'],
                                 'formats': ['<f4', '<f4', '<f4', '<f4', '<f4', 'u1'],
@@ -113,8 +116,8 @@ class MapClouds:
     def __init__(self, grid: OccupancyGrid):
         self.grid = grid
         size = grid.spec.cells_per_axis ** 3
-        self._touched = np.empty((size, 6), dtype=np.float32)
-        self._occupied = np.empty((size, 6), dtype=np.float32)
+        self._touched = np.empty((size, 7), dtype=np.float32)
+        self._occupied = np.empty((size, 7), dtype=np.float32)
         self._buffers = kernels.CloudBuffers(self._touched, self._touched.view(np.uint32),
                                              self._occupied, self._occupied.view(np.uint32))
 
@@ -122,9 +125,10 @@ class MapClouds:
         grid = self.grid
         grid.apply_layer()          # the kernel reads the cell arrays directly
         time_origin = grid.earliest_touch if math.isfinite(grid.earliest_touch) else 0.0
+        overridden, layer = grid.layer_overrides()
         touched, occupied = kernels.gather_cells(
             grid.cell_arrays, grid.geometry, grid.prior_log_odds, float(threshold), time_origin,
-            self._buffers)
+            overridden, layer, self._buffers)
         return (self._touched[:touched].view(MAP_CELL_DTYPE).reshape(-1),
                 self._occupied[:occupied].view(MAP_CELL_DTYPE).reshape(-1))
 

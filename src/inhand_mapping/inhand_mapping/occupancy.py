@@ -317,6 +317,30 @@ class OccupancyGrid:
         self.apply_layer()
         return self._judge.overridden, self._judge.rules
 
+    def layer_overrides(self) -> tuple[NDArray[np.intp], Floats]:
+        """(flat indices, ascending; the surface layer's probability there) of the cells
+        whose probability the cell judge set (cell_judge.py; none without the judge). A cell
+        the judge raised over the occupancy threshold from under it is one it rescued: most
+        are a second cell across a thinly touched surface, which the shape's parts leave out
+        (docs/shape.md, "With the touch map's cell judge")."""
+        judged = self.judged
+        if judged is None:
+            return np.empty(0, dtype=np.intp), np.empty(0)
+        cells, rules = judged
+        order = np.argsort(cells, kind='stable')
+        return cells[order], probability(rules[order])
+
+    def layer_probabilities(self, mask: Bools | None = None, threshold: float | None = None
+                            ) -> Floats:
+        """(M,) the surface layer's probability of each cell of ``cells(mask, threshold)``
+        (same order): the map's own but where the cell judge overrode it
+        (:meth:`layer_overrides`)."""
+        layer = self.probabilities().reshape(-1).copy()
+        cells, rules = self.layer_overrides()
+        layer[cells] = rules
+        picked: Floats = layer.reshape(self.log_odds.shape)[self._selected(mask, threshold)]
+        return picked
+
     def apply_layer(self) -> None:
         """Bring the cells around what changed since the last read up to date with the path
         model's surface layer (surface_layer.py), and then with the cell judge

@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike
 
-from inhand_common.array_types import Floats
+from inhand_common.array_types import Bools, Floats
 from inhand_common.atomic_file import write_file_set
 from inhand_common.parameters import ParamSpec
 from inhand_shape.grasps import Grasp, antipodal_grasps, graspable_scores
@@ -26,7 +26,7 @@ from inhand_shape.shape_parts import MAX_PARTS, Decomposition, decompose
 from inhand_shape.surface_mesh import SurfaceMesh, surface_mesh
 
 __all__ = ['DEFAULT_FRICTION', 'MESH_FORMATS', 'MODE_ORIENTATION', 'SHAPE_PARAMETERS', 'ShapeResult',
-           'extract_shape', 'mode_orientation', 'shape_file_names', 'support_normal',
+           'extract_shape', 'mode_orientation', 'part_cells', 'shape_file_names', 'support_normal',
            'write_shape_files']
 
 DEFAULT_FRICTION = 0.5     # a fingertip on wood or plastic
@@ -105,19 +105,41 @@ def support_normal(mode: str | None) -> tuple[float, float, float] | None:
     return up if on_support else None
 
 
+def part_cells(probabilities: ArrayLike, threshold: float, layer: ArrayLike | None = None
+               ) -> tuple[Bools, Floats]:
+    """(which cells the parts are fitted on, the weights of those): the cells at or above
+    ``threshold`` with their probabilities -- given the surface ``layer``'s probabilities,
+    the map without the cell judge's rescue: not the cells the layer holds under
+    ``threshold``, the lower of the two probabilities for the others (all of them where
+    nothing else would be left). Most rescued cells are a second cell across the surface, a
+    few millimetres off it: the parts are searched on cell centres, and a surface two cells
+    thick moves them (docs/shape.md, "With the touch map's cell judge")."""
+    p = np.asarray(probabilities, dtype=float)
+    keep: Bools = p >= threshold
+    if layer is not None:
+        below = np.asarray(layer, dtype=float)
+        sheet: Bools = keep & (below >= threshold)
+        if sheet.any():
+            return sheet, np.minimum(p, below)[sheet]
+    return keep, p[keep]
+
+
 def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
                   first_touch: ArrayLike, *, resolution: float, origin: ArrayLike = (0, 0, 0),
                   threshold: float = 0.8, friction: float = DEFAULT_FRICTION,
                   max_parts: int = MAX_PARTS, frame_id: str = 'object',
                   surface_points: ArrayLike | None = None,
-                  up: ArrayLike | None = None) -> ShapeResult:
+                  up: ArrayLike | None = None, layer: ArrayLike | None = None) -> ShapeResult:
     """The shape of the map whose cells are given (centres (N, 3) m, probabilities, hits,
     first-touch times; any cells, those at or above ``threshold`` are used).
     ``surface_points`` (N, 3) m: where in each cell the surface was measured (the map's
     contact centroids); the surface mesh's tangent planes pass there (surface_mesh) and the
     parts' last fit takes them (shape_parts.decompose). ``up`` (3,): the object stands on a
     support whose normal this is (a static map): the parts may be held upright
-    (superquadric.fit_superquadric)."""
+    (superquadric.fit_superquadric). ``layer`` (N,): the surface layer's probabilities
+    (OccupancyGrid.layer_probabilities): the parts and the graspable scores leave out the
+    cells the map's cell judge raised to ``threshold`` from under it (:func:`part_cells`);
+    the mesh takes them."""
     if not 0 < threshold < 1:
         raise ValueError(f'threshold {threshold}: must be in (0, 1)')
     if not friction >= 0:
@@ -132,10 +154,12 @@ def extract_shape(centres: ArrayLike, probabilities: ArrayLike, hits: ArrayLike,
     mesh = surface_mesh(cells, resolution, origin, surface_points=measured)
     seconds['mesh'] = time.perf_counter() - start
     start = time.perf_counter()
-    parts = decompose(cells, p[keep], resolution=resolution, max_parts=max_parts,
-                      surface_points=measured, up=up)
+    sheet, weights = part_cells(p, threshold, layer)
+    chosen = sheet[keep]
+    parts = decompose(cells[chosen], weights, resolution=resolution, max_parts=max_parts,
+                      surface_points=None if measured is None else measured[chosen], up=up)
     seconds['parts'] = time.perf_counter() - start
-    scores = graspable_scores(parts.parts, np.asarray(hits)[keep], np.asarray(first_touch)[keep])
+    scores = graspable_scores(parts.parts, np.asarray(hits)[sheet], np.asarray(first_touch)[sheet])
     graspable = int(np.argmax(scores)) if len(parts.parts) else None
     grasps: list[Grasp] = []
     if graspable is not None:

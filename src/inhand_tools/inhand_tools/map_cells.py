@@ -56,6 +56,9 @@ class MapCells:
     textured: np.ndarray | None = None  # (n,) bool: the camera saw the cell (None: no colours)
     contact_centroids: np.ndarray | None = None  # (n, 3): where in each cell its hits were
     # (their mean; the centre where none): an NPZ's, None for a PLY or a cloud, which keep none
+    layer: np.ndarray | None = None  # (n,): the surface layer's probability, where the cell
+    # judge overrode it too (OccupancyGrid.layer_probabilities): an NPZ's or a map cloud's,
+    # None for a PLY
 
     @property
     def has_colours(self) -> bool:
@@ -180,9 +183,10 @@ def _structured_cells(cells: np.ndarray, source: str, kind: str, complete: bool,
     if all(name in names for name in ('red', 'green', 'blue', 'textured')):
         colours = np.stack([cells[c] for c in ('red', 'green', 'blue')], axis=1).astype(np.uint8)
         textured = cells['textured'].astype(bool)
+    layer = cells['layer'].astype(np.float64) if 'layer' in names else None
     return MapCells(centres, cells['intensity'].astype(np.float64), hits, _relative(first),
                     lattice, kind, source, complete, frame_id, colours=colours,
-                    textured=textured)
+                    textured=textured, layer=layer)
 
 
 def _read_ply(path: Path, resolution: float | None) -> MapCells:
@@ -221,7 +225,8 @@ def _read_npz(path: Path) -> MapCells:
                     hits.astype(np.int64), _relative(first_touch), lattice, 'npz',
                     str(path), True, metadata.get('frame_id', 'object'), metadata,
                     colours=colours, textured=textured,
-                    contact_centroids=grid.contact_centroids())
+                    contact_centroids=grid.contact_centroids(),
+                    layer=grid.layer_probabilities())
 
 
 def _read_bag_cloud(bag: Path, resolution: float | None) -> MapCells:

@@ -1,6 +1,7 @@
 """ROS 2 node ``shape_node``: the map's surface mesh, superquadric parts and grasps on request.
 
-Subscribes ``occupancy/occupied`` (the occupancy node's occupied cells, latched) and
+Subscribes ``occupancy/occupied`` (the occupancy node's occupied cells, latched; its
+``layer`` field tells the parts which cells the cell judge rescued) and
 ``registration/points`` (the registered fingertip positions the map is made of: where in
 each occupied cell they fell places the parts' last fit to better than a cell, as the map
 file's contact centroids do for ``extract_shape``; the newest :data:`KEPT_POSITIONS`
@@ -125,7 +126,9 @@ class ShapeNode(Node):
                                # none placed (the node started after the touches): the
                                # cells with their slack, not their centres as points
                                surface_points=centroids(centres, sums, counts) if counts.any() else None,
-                               up=support_normal(self._mode))
+                               up=support_normal(self._mode),
+                               # (a cloud from before the field: every cell is the sheet's)
+                               layer=cells['layer'] if 'layer' in cells.dtype.names else None)
         stamp = self.get_clock().now().to_msg()
         array = MarkerArray()
         clear = Marker()

@@ -65,7 +65,7 @@ def write_shape_of_map(map_path: Path, output: Path, name: str, parameters: dict
                            threshold=parameters['occupied_threshold'],
                            friction=parameters['friction'], max_parts=parameters['max_parts'],
                            frame_id=cells.frame_id, surface_points=cells.contact_centroids,
-                           up=support_normal(cells.registration_mode))
+                           up=support_normal(cells.registration_mode), layer=cells.layer)
     figure = shape_figure(cells, result, f'{name}: shape of the map',
                           parameters['occupied_threshold'], up=up)
     ok, png = cv2.imencode('.png', figure)
