@@ -214,6 +214,42 @@ def test_the_layers_probabilities_are_the_map_without_the_judge_in_its_clouds_an
     np.testing.assert_array_equal(map_cells(rules)['layer'], map_cells(rules)['intensity'])
 
 
+@pytest.mark.parametrize('form', ['product', 'entropy'])
+def test_a_fused_map_carries_the_fusion_of_the_touch_layer_in_its_clouds_and_file(form, tmp_path):
+    """Fused with a vision map, the published map is the fusion of the judged touch map;
+    where the touch map's judge overrode, its layer is the fusion of the touch layer
+    instead, in the fused grid, its map clouds and its file read back; reading the layer
+    leaves the fused map as it was."""
+    from inhand_common.log_odds import probability
+    from inhand_mapping.cloud_layouts import map_cells
+    from inhand_mapping.fusion import fuse
+    from inhand_mapping.global_map import GlobalMap
+    from inhand_tools.map_cells import load_map
+    touch = session_grid()
+    vision = np.zeros(touch.spec.shape)
+    vision[:, :, :20], vision[:, :, 30:] = 0.7, -0.5
+    fused_map = GlobalMap(touch, form, 1, (-2.0, 3.5), 'log')
+    fused_map.set_vision(vision)
+    fused = fused_map.grid()
+    expected = fuse(form, touch.log_odds, vision, (-2.0, 3.5), 1, 'log').log_odds
+    np.testing.assert_allclose(fused.probabilities(), probability(expected), rtol=1e-12)
+    cells, rules = touch.judged
+    layer = touch.log_odds.copy()
+    layer.reshape(-1)[cells] = rules
+    without = probability(fuse(form, layer, vision, (-2.0, 3.5), 1, 'log').log_odds).reshape(-1)
+    held, held_layer = fused.layer_overrides()
+    np.testing.assert_array_equal(held, np.sort(cells))
+    np.testing.assert_allclose(held_layer, without[held], rtol=1e-12)
+    np.testing.assert_allclose(fused.probabilities(), probability(expected), rtol=1e-12)
+    p, fused_layer = fused.cells()[1], fused.layer_probabilities()
+    assert np.count_nonzero((p >= 0.8) & (fused_layer < 0.8)) > 0          # rescued
+    np.testing.assert_array_equal(map_cells(fused)['layer'], fused_layer.astype(np.float32))
+    map_io.save_npz(fused, tmp_path / 'fused.npz', local_maps=fused_map.local_maps())
+    read = load_map(tmp_path / 'fused.npz')
+    np.testing.assert_allclose(read.probabilities, p, rtol=1e-12)
+    np.testing.assert_allclose(read.layer, fused_layer, rtol=1e-12)
+
+
 def test_the_judged_map_is_the_same_however_often_and_in_what_pieces_it_is_read():
     once = session_grid().log_odds.copy()
     often = session_grid(chunks=23, read_between=True)

@@ -75,9 +75,23 @@ class GlobalMap:
         if self._stale:
             fused = fuse(self.fusion, self.touch.log_odds, self.vision, self.clamp,
                          self.entropy_radius, self.entropy_pooling)
-            self._fused.show(fused.log_odds, self.touch)
+            self._fused.show(fused.log_odds, self.touch, self._fused_layer())
             self._stale = False
         return self._fused
+
+    def _fused_layer(self) -> tuple[NDArray[np.intp], NDArray[np.float64]] | None:
+        """(the cells the touch map's cell judge overrode, the fusion there of the touch
+        map's surface layer instead): what the shape's parts take of the fused map
+        (OccupancyGrid.layer_overrides). A second fusion, only while the judge overrides."""
+        judged = self.touch.judged
+        if judged is None or len(judged[0]) == 0:
+            return None
+        cells, rules = judged
+        layer = self.touch.log_odds.copy()
+        layer.reshape(-1)[cells] = rules
+        without = fuse(self.fusion, layer, self.vision, self.clamp, self.entropy_radius,
+                       self.entropy_pooling)
+        return cells, without.log_odds.reshape(-1)[cells]
 
     def local_maps(self) -> dict[str, NDArray[np.float64]] | None:
         """The local maps to save beside a fused map (None when not fusing)."""

@@ -189,10 +189,11 @@ def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
     # evidence is not the touch map's, and its file keeps the touch map's log-odds only.
     if grid.touch_evidence is not None and 'touch' not in (local_maps or {}):
         arrays['touch_evidence'] = grid.touch_evidence
-        # and where the cell judge overrode the layer, with what it replaced: resumed, the
-        # map goes on from the layer's values there (occupancy.OccupancyGrid.judged)
-        if grid.judged is not None:
-            arrays['judged_cells'], arrays['judged_rules'] = grid.judged
+    # and where the cell judge overrode the layer, with what it replaced: resumed, the
+    # map goes on from the layer's values there (occupancy.OccupancyGrid.judged); a fused
+    # map's are the fusion of the touch map's layer there (global_map.GlobalMap.grid)
+    if grid.judged is not None and ('touch_evidence' in arrays or len(grid.judged[0])):
+        arrays['judged_cells'], arrays['judged_rules'] = grid.judged
     with write(target) as stream:
         np.savez_compressed(stream, **arrays)  # type: ignore[arg-type]
     return target
@@ -252,7 +253,7 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
     kinds = {'log_odds': 'f', 'hits': 'ui', 'first_touch': 'f', 'touch_evidence': 'f',
              'contact_sum': 'f', 'judged_cells': 'ui', 'judged_rules': 'f'}
     judged = [arrays.pop(name) for name in ('judged_cells', 'judged_rules') if name in arrays]
-    if len(judged) == 2 and 'touch_evidence' in arrays:
+    if len(judged) == 2:
         for name, array in zip(('judged_cells', 'judged_rules'), judged):
             if array.ndim != 1 or array.dtype.kind not in kinds[name]:
                 raise ValueError(f'{name} is {array.dtype} {array.shape}, not a list')
@@ -291,6 +292,8 @@ def _grid_of(metadata: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> Occup
     if 'touch_evidence' in arrays:
         grid.restore_touch_evidence(arrays['touch_evidence'],
                                     (judged[0], judged[1]) if judged else None)
+    elif judged:        # a fused map: its layer where the touch map's judge overrode
+        grid.hold_layer(judged[0], judged[1])
     grid.counts = counts
     return grid
 

@@ -535,10 +535,13 @@ class OccupancyGrid:
         view.flags.writeable = False
         return view
 
-    def show(self, log_odds: ArrayLike, source: OccupancyGrid) -> None:
+    def show(self, log_odds: ArrayLike, source: OccupancyGrid,
+             layer: tuple[ArrayLike, ArrayLike] | None = None) -> None:
         """Become a view of another map of the same grid: ``log_odds`` (a global map fused
         from ``source`` and another sensor) with ``source``'s hit counts and first touches,
-        copied in place (the kernels keep their views of these arrays)."""
+        copied in place (the kernels keep their views of these arrays). ``layer``: (flat
+        cells, log-odds) the view without the cell judge's verdicts at the cells ``source``'s
+        judge overrode (:meth:`hold_layer`)."""
         if source.spec != self.spec:
             raise ValueError(f'grids differ: {source.spec} and {self.spec}')
         self.log_odds[...] = log_odds
@@ -547,6 +550,15 @@ class OccupancyGrid:
         self.contact_sum[...] = source.contact_sum
         self.counts = source.counts
         self.refresh()
+        if layer is not None:
+            self.hold_layer(*layer)
+
+    def hold_layer(self, cells: ArrayLike, log_odds: ArrayLike) -> None:
+        """This map, a view set from outside (a fused map, a fused map's file), differs
+        from its surface layer's at ``cells`` (flat), where the layer gave ``log_odds``:
+        what :meth:`layer_overrides` says. Nothing without the judge."""
+        if self._judge is not None:
+            self._judge.resume(cells, log_odds)
 
     def refresh(self) -> None:
         """Recompute what is derived from the arrays after they were set directly (loading)."""
