@@ -127,7 +127,7 @@ class ShapeNode(Node):
                                # cells with their slack, not their centres as points
                                surface_points=centroids(centres, sums, counts) if counts.any() else None,
                                up=support_normal(self._mode),
-                               # (a cloud from before the field: every cell is the sheet's)
+                               # (a cloud from before the field: the parts take every cell)
                                layer=cells['layer'] if 'layer' in cells.dtype.names else None)
         stamp = self.get_clock().now().to_msg()
         array = MarkerArray()
