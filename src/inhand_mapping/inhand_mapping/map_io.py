@@ -192,8 +192,9 @@ def save_npz(grid: OccupancyGrid, path: FilePath, frame_id: str = 'object',
     # and where the cell judge overrode the layer, with what it replaced: resumed, the
     # map goes on from the layer's values there (occupancy.OccupancyGrid.judged); a fused
     # map's are the fusion of the touch map's layer there (global_map.GlobalMap.grid)
-    if grid.judged is not None and ('touch_evidence' in arrays or len(grid.judged[0])):
-        arrays['judged_cells'], arrays['judged_rules'] = grid.judged
+    judged = grid.judged
+    if judged is not None and ('touch_evidence' in arrays or len(judged[0])):
+        arrays['judged_cells'], arrays['judged_rules'] = judged
     with write(target) as stream:
         np.savez_compressed(stream, **arrays)  # type: ignore[arg-type]
     return target
