@@ -171,3 +171,26 @@ def test_a_set_of_our_own_hands_is_written_in_the_validation_format_and_scored(w
     precision, oracle, floor = float(rows[0][2]), float(rows[0][6]), float(rows[0][7])
     assert 0.5 < precision <= 1.0 and 0.5 < oracle <= 1.0
     assert floor == pytest.approx(min(0.85, oracle - 0.02), abs=0.0011)
+
+
+def test_the_sets_of_our_own_hands_keep_their_draws_and_set_b_adds_a_third_hand(workspace):
+    sys.path.insert(0, str(workspace / 'test' / 'benchmarks'))
+    try:
+        import hand_sessions
+    finally:
+        sys.path.pop(0)
+    a, s, b = (hand_sessions.sessions(name) for name in ('A', 'S', 'B'))
+    # sets A and S as the touch model's defaults were chosen on them (docs/quality.md)
+    assert (len(a), len(s), len(b)) == (24, 16, 24)
+    assert [a[0][0], a[-1][0], s[0][0]] == ['cat_st_v5_r30_T120_s300b', 'mug_st_v2_r30_T120_s323a',
+                                            'duck45pc_tr_v10_r15_T120_s500b']
+    assert {label[-1] for label, *_ in a + s} == {'a', 'b'}
+    hands = {label[-1]: hand for label, _obj, _st, _v, _r, hand, _seed, _t in b}
+    assert set(hands) == {'a', 'b', 'c'} and hands['c'] is hand_sessions.HAND_C
+    # hand c flicks: a lift faster than its height over one sample at 30 Hz
+    c = dict(item.split('=') for item in hand_sessions.HAND_C)
+    fastest = float(c['liftoff_speed_range'].split(',')[1])
+    highest = float(c['liftoff_height_range'].split(',')[1])
+    assert fastest / 30.0 > highest
+    assert {obj for _label, obj, *_ in b} >= {'large', 'rod', 'plate', 'cup:1.3'}
+    assert [seed for *_, seed, _t in b] == list(range(700, 724))

@@ -6,7 +6,7 @@ sessions it did not learn from (docs/quality.md, "The cell judge").
     .venv/bin/python test/benchmarks/hand_sessions.py --set A --seconds 60 --output /tmp/hands_a60
     .venv/bin/python test/benchmarks/bench_cell_judge.py --train /tmp/hands_a,/tmp/hands_s \
         [--check ../shared/data/validation_sessions,/tmp/hands_a60] [--keep DIR] [--jobs 2] \
-        [--export src/inhand_mapping/inhand_mapping/cell_judge_model.npz]
+        [--export src/inhand_mapping/inhand_mapping/cell_judge_model.npz] [--set NAME=VALUE ...]
 
 The surface layer (inhand_mapping/surface_layer.py) decides by hand-made rules which touched
 cells are surface; the judge overrides it where it is sure. Every session of the folders is
@@ -28,6 +28,8 @@ several thresholds (``cell_judge.verdicts``; the map's own marked). ``--export``
 classifier of all the training sessions as the map reads it. The classifier is
 scikit-learn's, installed on first use into ``.sklearn-lib`` (pip ``--target``, without
 touching .venv; numpy and scipy are .venv's). Sets A and S come from ``hand_sessions.py``.
+``--set`` maps every session with another touch model (``build_map --set``), to learn the
+judge on its evidence: keep those maps in a ``--keep`` folder of their own.
 """
 
 from __future__ import annotations
@@ -151,15 +153,16 @@ def ensemble(model) -> TreeEnsemble:
         baseline=float(np.asarray(model._baseline_prediction).ravel()[0]), features=FEATURES)
 
 
-def mapped(folder: Path, maps: Path, jobs: int) -> list[Session]:
-    """The folder's sessions, each mapped by build_map into ``maps`` (a kept map is reused)."""
+def mapped(folder: Path, maps: Path, jobs: int, overrides: list[str]) -> list[Session]:
+    """The folder's sessions, each mapped by build_map into ``maps`` (a kept map is reused)
+    with the ``overrides`` (``NAME=VALUE``) besides the judge's own."""
     bags = sorted(p for p in folder.iterdir() if p.is_dir() and (p.parent / f'{p.name}_truth.npz').exists())
     out = maps / folder.name
     out.mkdir(parents=True, exist_ok=True)
     todo = [b for b in bags if not (out / f'{b.name}.npz').exists()]
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         # the rules alone: the judge's training and its baseline
-        list(pool.map(lambda bag: score(bag, out, ['cell_judge=false']), todo))
+        list(pool.map(lambda bag: score(bag, out, [*overrides, 'cell_judge=false']), todo))
     return [Session(b, out) for b in bags]
 
 
@@ -189,6 +192,9 @@ def main() -> int:
                              'sessions (without those of the same draw)')
     parser.add_argument('--keep', type=Path, help='keep the maps in this folder (and reuse them)')
     parser.add_argument('--jobs', type=int, default=2)
+    parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                        help='build_map override (repeatable): learn on maps of another touch '
+                             'model (keep them in a --keep folder of their own)')
     parser.add_argument('--export', type=Path,
                         help='write the classifier of all training sessions here, as the map '
                              'reads it (inhand_mapping/cell_judge_model.npz is the default\'s)')
@@ -206,8 +212,8 @@ def main() -> int:
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix='bench_cell_judge_') as scratch:
         maps = args.keep or Path(scratch)
-        train = {f.name: mapped(f, maps, args.jobs) for f in folders}
-        check = {f.name: mapped(f, maps, args.jobs) for f in checks}
+        train = {f.name: mapped(f, maps, args.jobs, args.set) for f in folders}
+        check = {f.name: mapped(f, maps, args.jobs, args.set) for f in checks}
     everyone = [s for v in train.values() for s in v]
     print(f'# {len(everyone)} training sessions, {sum(len(v) for v in check.values())} to check; '
           f'{sum(len(s.labels) for s in everyone)} pool cells to learn on; mapped in '

@@ -13,7 +13,12 @@ animal at 0.4, the cup at 0.6 of their size: 5-7 cm). Each session draws static 
 a stroke speed (2, 5, 10, 15 cm/s), a rate (15, 30, 30, 240 Hz) and one of two hands:
 ``a``, strokes of 3-12 cm, lifts of 1-4 cm at 0.1-0.3 m/s along the normal, 0.3 m/s carries;
 ``b``, the same with bell-shaped strokes, hovers at 2-6 mm, 0.5 mm of 10 Hz tremor and lifts
-up to 60 degrees oblique. Seeds: 300-323 (A), 500-515 (S). ``--seconds 60`` writes the same
+up to 60 degrees oblique. Set B (written after the defaults and the cell judge were chosen:
+a check): 24 sessions over the large ellipsoid, box, plate, rod, the duck at 0.8, the animal
+at 0.7, the cup at 1.3, the bottle, mug, cat, duck and animal, each with hand a, b or ``c``:
+strokes of 2-8 cm, lifts of 0.5-2 cm at 0.3-1.5 m/s (mostly flicks within one sample) 30-80
+degrees from the normal, 0.6 m/s carries, hovers at 1-4 mm after 30 % of the strokes and
+1 mm of 8 Hz tremor. Seeds: 300-323 (A), 500-515 (S), 700-723 (B). ``--seconds 60`` writes the same
 draws as 60 s sessions, named ``..._T60_...``, which ``bench_validation.py`` holds to the
 60 s floor (F >= 0.85, or within 0.02 of the oracle). Each bag is written with
 ``simulate_session``; its truth goes beside it as ``<name>_truth.npz`` (``surface``,
@@ -44,17 +49,28 @@ HAND_A = ('stroke_length_range=0.03,0.12', 'liftoff_height_range=0.01,0.04',
 HAND_B = HAND_A + ('speed_profile=bell', 'hover_probability=0.2',
                    'hover_height_range=0.002,0.006', 'tremor_amplitude=0.0005',
                    'tremor_frequency=10', 'liftoff_angle_range=0,60')
+# a quick, twitchy hand: short strokes, low lifts that are mostly flicks within a sample
+# (up to 1.5 m/s), oblique to nearly tangential, fast carries, frequent low hovers and
+# 1 mm of tremor
+HAND_C = ('stroke_length_range=0.02,0.08', 'liftoff_height_range=0.005,0.02',
+          'liftoff_speed_range=0.3,1.5', 'liftoff_angle_range=30,80', 'transit_speed=0.6',
+          'hover_probability=0.3', 'hover_height_range=0.001,0.004',
+          'tremor_amplitude=0.001', 'tremor_frequency=8')
+HAND_LABELS = {HAND_A: 'a', HAND_B: 'b', HAND_C: 'c'}
+# (first seed / 100, sessions, objects, hands)
 SETS = {
     'A': (3, 24, ('cat', 'cup', 'animal', 'duck', 'bottle', 'mug', 'plate', 'box', 'rod',
-                  'cat', 'cup', 'mug')),
-    'S': (5, 16, ('duck:0.45', 'animal:0.4', 'cup:0.6', 'duck:0.45')),
+                  'cat', 'cup', 'mug'), (HAND_A, HAND_B)),
+    'S': (5, 16, ('duck:0.45', 'animal:0.4', 'cup:0.6', 'duck:0.45'), (HAND_A, HAND_B)),
+    'B': (7, 24, ('large', 'box', 'plate', 'rod', 'duck:0.8', 'animal:0.7', 'cup:1.3',
+                  'bottle', 'mug', 'cat', 'duck', 'animal'), (HAND_A, HAND_B, HAND_C)),
 }
 
 
 def sessions(name: str, seconds: int = 120) -> list[tuple]:
     """(session name, object, static, speed, rate, hand, seed, seconds) of set ``name``,
     each ``seconds`` long."""
-    base, count, objects = SETS[name]
+    base, count, objects, hands = SETS[name]
     rng = random.Random(base)
     out = []
     for k in range(count):
@@ -62,13 +78,13 @@ def sessions(name: str, seconds: int = 120) -> list[tuple]:
         static = rng.random() < 0.5
         speed = rng.choice([2, 5, 10, 15])
         rate = rng.choice([15, 30, 30, 240])
-        hand = HAND_A if rng.random() < 0.5 else HAND_B
+        hand = hands[int(rng.random() * len(hands))]   # A, S: a below 0.5, as first drawn
         seed = base * 100 + k
         # a mesh at a scale: 'duck45pc' (no dot: build_map names its map by the bag's stem)
         shown = obj if ':' not in obj else \
             f'{obj.split(":")[0]}{round(float(obj.split(":")[1]) * 100)}pc'
         label = (f'{shown}_{"st" if static else "tr"}_v{speed}_r{rate}_T{seconds}_'
-                 f's{seed}{"b" if hand is HAND_B else "a"}')
+                 f's{seed}{HAND_LABELS[hand]}')
         out.append((label, obj, static, speed, rate, hand, seed, seconds))
     return out
 
