@@ -296,6 +296,18 @@ def test_cells_a_touch_map_holds_off_the_surface_get_the_colour_the_camera_saw()
     assert not textured[hidden].any()
 
 
+def face_on_box():
+    """The box with its -x face straight to the camera, rendered: (camera, pose, image,
+    depth, the box's cells, visible, expected colours, hidden, each cell's face normal)."""
+    cam = camera()
+    box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))
+    image, depth = render([box], cam, pose, IDENTITY)
+    cells = box.cells()
+    visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
+    normals = box.face_normals()[box.faces_of(cells).argmax(axis=1)]
+    return cam, pose, image, depth, box, cells, visible, expected, hidden, normals
+
+
 def test_cells_a_touch_map_holds_inside_the_surface_get_the_colour_the_camera_saw():
     """The other way: the seen face's cells moved 0.6 of a cell in along its normal (a
     finger pressing, a pad's centre), so their centres lie 0.84 of a cell behind the
@@ -304,12 +316,7 @@ def test_cells_a_touch_map_holds_inside_the_surface_get_the_colour_the_camera_sa
     the measured depth is within ``MapView.tolerance`` (a cell) of theirs. Nothing more
     than a cell from the seen face is painted (the side faces, seen edge-on, are next to
     it)."""
-    cam = camera()
-    box, pose = box_scene(eye_offset=(-0.4, 0.0, 0.0))          # the -x face straight on
-    image, depth = render([box], cam, pose, IDENTITY)
-    cells = box.cells()
-    visible, expected, hidden = expected_box(box, cells, np.asarray(pose[0]))
-    normals = box.face_normals()[box.faces_of(cells).argmax(axis=1)]
+    cam, pose, image, depth, box, cells, visible, expected, hidden, normals = face_on_box()
     assert np.allclose(cells[visible, 0] - (box.centre[0] - box.half[0]), 0.24 * RES,
                        atol=0.01 * RES)                  # the face crosses its cells here
     moved = cells - np.where(visible[:, None], 0.6 * RES * normals, 0.0)
@@ -327,6 +334,30 @@ def test_cells_a_touch_map_holds_inside_the_surface_get_the_colour_the_camera_sa
     with pytest.raises(ValueError, match='map_view'):
         texture_cells(moved, RES, image, cam, cam.R, pose, IDENTITY, depth,
                       map_view=MapView(min_samples=0))
+
+
+def test_cells_the_cell_judge_rescued_in_front_of_the_layer_hide_nothing():
+    """The touch map's judge can add a second cell across the surface (docs/quality.md,
+    "The cell judge"): here the seen face's layer lies 0.6 of a cell inside the surface (as
+    in the test above) and the judge's cells a cell in front of it, where the measured
+    surface is. Every cell is textured where the camera saw it; as ordinary cells, those
+    in front hide the layer from the map's view, and as rescued cells they do not."""
+    cam, pose, image, depth, _box, cells, visible, expected, hidden, normals = face_on_box()
+    layer = cells - np.where(visible[:, None], 0.6 * RES * normals, 0.0)
+    front = cells[visible] + 0.4 * RES * normals[visible]
+    both = np.vstack([layer, front])
+    rescued = np.r_[np.zeros(len(layer), bool), np.ones(len(front), bool)]
+    ordinary = texture_cells(both, RES, image, cam, cam.R, pose, IDENTITY, depth)
+    colours, textured = texture_cells(both, RES, image, cam, cam.R, pose, IDENTITY, depth,
+                                      rescued=rescued)
+    assert visible.sum() > 60
+    assert ordinary.textured[:len(layer)][visible].mean() < 0.3     # hidden by the front
+    assert textured[:len(layer)][visible].all()
+    assert textured[len(layer):].all() and ordinary.textured[len(layer):].all()
+    assert np.abs(colours[:len(layer)][visible].astype(int) - expected[visible]).max() <= 3
+    assert not textured[:len(layer)][hidden].any()
+    with pytest.raises(ValueError, match='rescued has 3 values'):
+        texture_cells(both, RES, image, cam, cam.R, pose, IDENTITY, depth, rescued=[True] * 3)
 
 
 def test_the_back_of_a_thin_plate_right_behind_its_front_is_not_painted():

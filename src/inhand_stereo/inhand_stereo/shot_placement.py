@@ -50,10 +50,11 @@ class PlacedShot(NamedTuple):
         tracker frame)."""
         return self.shot.points_in_map(camera_pose, self.object_pose)
 
-    def texture(self, centres: ArrayLike, resolution: float, camera_pose: ArrayLike
-                ) -> CellTexture:
-        """Colours and textured mask of occupied cells (map-frame centres) from the shot."""
-        return self.shot.texture(centres, resolution, camera_pose, self.object_pose)
+    def texture(self, centres: ArrayLike, resolution: float, camera_pose: ArrayLike,
+                rescued: ArrayLike | None = None) -> CellTexture:
+        """Colours and textured mask of occupied cells (map-frame centres) from the shot;
+        ``rescued``: those the cell judge rescued (texture.texture_cells)."""
+        return self.shot.texture(centres, resolution, camera_pose, self.object_pose, rescued)
 
     def map_to_camera(self, camera_pose: ArrayLike) -> tuple[Matrix3, Vector3]:
         """``(M, b)`` with ``p_rectified = M p_map + b`` (the rectified left camera)."""

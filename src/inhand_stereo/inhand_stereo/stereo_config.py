@@ -77,7 +77,7 @@ STEREO_PARAMETERS: tuple[ParamSpec, ...] = (
     *_shared(REGISTRATION_PARAMETERS, 'object_name', 'max_gap', 'frame_prefix',
              'tracker_frame', 'map_frame'),
     *_shared(OCCUPANCY_PARAMETERS, 'workspace_size', 'resolution', 'workspace_centre',
-             'clamp_min', 'clamp_max'),
+             'clamp_min', 'clamp_max', 'occupied_threshold'),
 )
 
 
@@ -106,6 +106,9 @@ class StereoConfig:
     vision: VisionModel
     segmentation: SegmentationConfig
     camera_pose_given: bool = True       # False: no file set camera_pose (no calibration)
+    # the occupancy node's: an occupied cell whose surface layer is under it was rescued by
+    # the cell judge (texture.texture_cells' ``rescued``)
+    occupied_threshold: float = 0.8
     frames: FrameNames = field(default_factory=FrameNames)
 
     @property
@@ -149,7 +152,8 @@ class StereoConfig:
                    segmentation=SegmentationConfig(
                        plane_tolerance=float(values['plane_tolerance']),
                        support_fraction=float(values['support_fraction'])),
-                   camera_pose_given=camera_pose_given, frames=frames)
+                   camera_pose_given=camera_pose_given, frames=frames,
+                   occupied_threshold=float(values['occupied_threshold']))
 
 
 def load_stereo_config(configs: Iterable[str], overrides: Mapping[str, Any] | None = None

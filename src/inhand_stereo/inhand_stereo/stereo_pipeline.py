@@ -65,14 +65,16 @@ class StereoShot:
                           dtype=np.float32)
 
     def texture(self, centres: ArrayLike, resolution: float, camera_pose: ArrayLike,
-                object_pose: ArrayLike | None) -> CellTexture:
-        """Colour and textured mask of occupied cells (map-frame centres) from this shot."""
+                object_pose: ArrayLike | None, rescued: ArrayLike | None = None) -> CellTexture:
+        """Colour and textured mask of occupied cells (map-frame centres) from this shot;
+        ``rescued``: those the cell judge rescued (texture.texture_cells)."""
         camera = np.asarray(camera_pose, dtype=np.float64).reshape(7)
         obj = (np.asarray(object_pose, dtype=np.float64).reshape(7) if object_pose is not None
                else np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]))
         return texture_cells(centres, resolution, self.left_rgb, self.left_camera,
                              self.rectifier.R_left, (camera[:3], camera[3:]),
-                             (obj[:3], obj[3:]), self.depth, depth_hole_mask=self.holes)
+                             (obj[:3], obj[3:]), self.depth, depth_hole_mask=self.holes,
+                             rescued=rescued)
 
     @cached_property
     def holes(self) -> NDArray[np.bool_]:

@@ -271,7 +271,8 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
                   samples: int = SAMPLES, min_samples: int = MIN_SAMPLES, fill: float = FILL,
                   orientation: Orientation = 'none', orientation_radius: int = 4,
                   map_view: MapView | None = MAP_VIEW,
-                  depth_hole_mask: NDArray[np.bool_] | None = None) -> CellTexture:
+                  depth_hole_mask: NDArray[np.bool_] | None = None,
+                  rescued: ArrayLike | None = None) -> CellTexture:
     """Colour of each occupied cell where the rectified left camera saw it (module doc).
 
     ``centres`` (N, 3) occupied cell centres in the map frame; ``resolution`` the cell edge
@@ -283,8 +284,12 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     rectified optical axis, NaN or inf where stereo measured nothing. Options (module doc):
     ``window``, ``samples`` per side of the footprint, ``min_samples`` in the window,
     ``fill`` (px), ``orientation`` and ``map_view`` (None: the window rule alone);
-    ``depth_hole_mask``: :func:`depth_holes` of ``depth`` when the caller keeps it. Returns
-    colours (N, 3) uint8 (0 where not textured) and the textured mask (N,).
+    ``depth_hole_mask``: :func:`depth_holes` of ``depth`` when the caller keeps it;
+    ``rescued`` (N,) bool: the cells the touch map's cell judge made occupied against its
+    surface layer (mostly a second cell across the surface): they are textured where the
+    camera saw them, but neither hide another cell in the map's depth image nor take the
+    stereo points that fall in them from it. Returns colours (N, 3) uint8 (0 where not
+    textured) and the textured mask (N,).
     """
     points = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     _check(image, depth, camera)
@@ -301,6 +306,11 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     if depth_hole_mask is not None and depth_hole_mask.shape != depth.shape:
         raise ValueError(f'depth_hole_mask is {depth_hole_mask.shape}, the depth '
                          f'{depth.shape}: they must be the same image')
+    solid = np.ones(len(points), dtype=bool)      # the cells that hide and claim
+    if rescued is not None:
+        solid = ~np.asarray(rescued, dtype=bool).reshape(-1)
+        if len(solid) != len(points):
+            raise ValueError(f'rescued has {len(solid)} values for {len(points)} cells')
     colours = np.zeros((len(points), 3), dtype=np.uint8)
     textured = np.zeros(len(points), dtype=bool)
     matrix, offset = map_to_rectified(camera_pose, object_pose, R_left)
@@ -317,6 +327,7 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     # the kernels look this many cells around a cell for the one a measured point lies in
     pad = max(3, math.ceil(max(behind, window.behind) + 1.5))
     ijk, occupied = _lattice(points, resolution, pad=pad)
+    occupied[tuple(ijk[~solid].T)] = False    # a point in a rescued cell is its own cell's
     strides = (np.array(occupied.strides) // occupied.itemsize).astype(np.int64)
     inverse = np.linalg.inv(P[:, :3]).astype(np.float64)
     half = resolution / 2.0
@@ -335,7 +346,8 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     if map_view is not None and len(rest):
         # the cells the window did not texture, by the second rule; their pixels in place
         front = np.empty(depth.shape, dtype=np.float64)
-        map_depth(projection.u, projection.v, projection.z, P, float(resolution), front)
+        map_depth(projection.u[solid], projection.v[solid], projection.z[solid], P,
+                  float(resolution), front)
         found = np.empty((len(rest), samples * samples), dtype=np.int64)
         blind = np.zeros(len(rest), dtype=bool)
         holes = np.zeros(depth.shape, dtype=bool)

@@ -95,10 +95,12 @@ class BagShot:
         """Seconds: the stamp of the pair :meth:`texture` colours with."""
         return self.latest.shot.stamp_ns * 1e-9
 
-    def texture(self, centres: np.ndarray) -> CellTexture:
-        """Colours of occupied cells (map-frame centres), as ``occupancy/textured``: from
-        :attr:`latest`, as the stereo node colours with the latest pair it placed."""
-        return self.latest.texture(centres, self.config.resolution, self.config.camera_pose)
+    def texture(self, centres: np.ndarray, rescued: np.ndarray | None = None) -> CellTexture:
+        """Colours of occupied cells (map-frame centres; ``rescued``: those the cell judge
+        rescued), as ``occupancy/textured``: from :attr:`latest`, as the stereo node colours
+        with the latest pair it placed."""
+        return self.latest.texture(centres, self.config.resolution, self.config.camera_pose,
+                                   rescued)
 
     def vision_log_odds(self) -> np.ndarray:
         """The vision local map of every usable pair of the bag (each integrated once), as

@@ -300,7 +300,11 @@ class StereoNode(Node):
         started = time.perf_counter()
         cells = self.cells
         centres = np.stack([cells['x'], cells['y'], cells['z']], axis=1).astype(np.float64)
-        texture = self.placed.texture(centres, self.config.resolution, self.config.camera_pose)
+        # the cells the touch map's judge rescued (their surface layer under the threshold)
+        rescued = cells['layer'] < self.config.occupied_threshold \
+            if 'layer' in (cells.dtype.names or ()) else None
+        texture = self.placed.texture(centres, self.config.resolution, self.config.camera_pose,
+                                      rescued)
         cloud = textured_cells(cells, texture.colours, texture.textured)
         stamp = stamp_from_seconds(self.placed.shot.stamp_ns * 1e-9)
         self._textured.publish(serialize_point_cloud2(cloud, self.frames.map_frame, stamp.sec,

@@ -70,8 +70,12 @@ def _with_vision(bag: Path, stereo: StereoConfig, occupancy: OccupancyConfig,
         observed = int(np.count_nonzero(global_map.vision))
         notes.append(f'  vision: {len(shot.pairs.placed)} stereo pair(s), {observed} cells '
                      f'observed; {occupancy.fusion} fusion with touch')
-    centres = global_map.grid().cells(threshold=occupancy.occupied_threshold)[0]
-    texture = shot.texture(centres)
+    grid = global_map.grid()
+    centres = grid.cells(threshold=occupancy.occupied_threshold)[0]
+    # the cells the judge rescued (their layer under the threshold) hide nothing
+    rescued = grid.layer_probabilities(threshold=occupancy.occupied_threshold) \
+        < occupancy.occupied_threshold
+    texture = shot.texture(centres, rescued)
     notes.append(f'  texture: {int(texture.textured.sum())} of {len(centres)} occupied cells '
                  f'seen by the stereo pair at {shot.texture_stamp:.3f} s '
                  f'({time.monotonic() - started:.2f} s)')
