@@ -293,24 +293,11 @@ def texture_cells(centres: ArrayLike, resolution: float, image: NDArray[np.uint8
     """
     points = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     _check(image, depth, camera)
-    if not resolution > 0.0 or samples < 1 or not 1 <= min_samples <= samples * samples or \
-            fill < 0.0 or not all(0.0 <= extent <= 2.0 for extent in window):
-        raise ValueError('resolution must be > 0, samples >= 1, min_samples in [1, '
-                         'samples^2], fill >= 0, the window 0-2 cells each way')
-    if map_view is not None and not (1 <= map_view.min_samples <= samples * samples
-                                     and map_view.tolerance >= 0.0 and map_view.ahead >= 0.0
-                                     and map_view.reach >= 0.0
-                                     and map_view.tolerance <= map_view.behind <= 10.0):
-        raise ValueError(f'map_view: min_samples in [1, samples^2], tolerance, ahead and '
-                         f'reach >= 0, behind in [tolerance, 10], got {map_view}')
+    _check_options(resolution, samples, min_samples, fill, window, map_view)
     if depth_hole_mask is not None and depth_hole_mask.shape != depth.shape:
         raise ValueError(f'depth_hole_mask is {depth_hole_mask.shape}, the depth '
                          f'{depth.shape}: they must be the same image')
-    solid = np.ones(len(points), dtype=bool)      # the cells that hide and claim
-    if rescued is not None:
-        solid = ~np.asarray(rescued, dtype=bool).reshape(-1)
-        if len(solid) != len(points):
-            raise ValueError(f'rescued has {len(solid)} values for {len(points)} cells')
+    solid = _solid(rescued, len(points))
     colours = np.zeros((len(points), 3), dtype=np.uint8)
     textured = np.zeros(len(points), dtype=bool)
     matrix, offset = map_to_rectified(camera_pose, object_pose, R_left)
@@ -446,6 +433,31 @@ def warm_up() -> None:
     identity = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
     texture_cells([[0.0, 0.0, 0.5], [0.005, 0.0, 0.5]], 0.005, np.zeros((4, 4, 3), np.uint8),
                   camera, np.eye(3), identity, identity, np.full((4, 4), 0.5, np.float32))
+
+
+def _check_options(resolution: float, samples: int, min_samples: int, fill: float,
+                   window: Window, map_view: MapView | None) -> None:
+    """ValueError for options :func:`texture_cells` cannot work with."""
+    if not resolution > 0.0 or samples < 1 or not 1 <= min_samples <= samples * samples or \
+            fill < 0.0 or not all(0.0 <= extent <= 2.0 for extent in window):
+        raise ValueError('resolution must be > 0, samples >= 1, min_samples in [1, '
+                         'samples^2], fill >= 0, the window 0-2 cells each way')
+    if map_view is not None and not (1 <= map_view.min_samples <= samples * samples
+                                     and map_view.tolerance >= 0.0 and map_view.ahead >= 0.0
+                                     and map_view.reach >= 0.0
+                                     and map_view.tolerance <= map_view.behind <= 10.0):
+        raise ValueError(f'map_view: min_samples in [1, samples^2], tolerance, ahead and '
+                         f'reach >= 0, behind in [tolerance, 10], got {map_view}')
+
+
+def _solid(rescued: ArrayLike | None, count: int) -> Bools:
+    """The cells that hide others and claim stereo points: all but the ``rescued`` ones."""
+    if rescued is None:
+        return np.ones(count, dtype=bool)
+    solid: Bools = ~np.asarray(rescued, dtype=bool).reshape(-1)
+    if len(solid) != count:
+        raise ValueError(f'rescued has {len(solid)} values for {count} cells')
+    return solid
 
 
 def _check(image: NDArray[np.uint8], depth: NDArray[np.floating], camera: CameraModel) -> None:
