@@ -173,7 +173,7 @@ def test_a_set_of_our_own_hands_is_written_in_the_validation_format_and_scored(w
     assert floor == pytest.approx(min(0.85, oracle - 0.02), abs=0.0011)
 
 
-def test_the_sets_of_our_own_hands_keep_their_draws_and_set_b_adds_a_third_hand(workspace):
+def test_the_sets_of_our_own_hands_keep_their_draws_and_sets_b_and_d_add_a_third_hand(workspace):
     sys.path.insert(0, str(workspace / 'test' / 'benchmarks'))
     try:
         import hand_sessions
@@ -194,3 +194,8 @@ def test_the_sets_of_our_own_hands_keep_their_draws_and_set_b_adds_a_third_hand(
     assert fastest / 30.0 > highest
     assert {obj for _label, obj, *_ in b} >= {'large', 'rod', 'plate', 'cup:1.3'}
     assert [seed for *_, seed, _t in b] == list(range(700, 724))
+    # set D: the third hand among set A's objects, to choose on (set B stays a check)
+    d = hand_sessions.sessions('D')
+    assert [seed for *_, seed, _t in d] == list(range(800, 816))
+    assert {label[-1] for label, *_ in d} == {'a', 'b', 'c'}
+    assert {obj for _label, obj, *_ in d} <= {obj for _label, obj, *_ in a}

@@ -18,7 +18,9 @@ a check): 24 sessions over the large ellipsoid, box, plate, rod, the duck at 0.8
 at 0.7, the cup at 1.3, the bottle, mug, cat, duck and animal, each with hand a, b or ``c``:
 strokes of 2-8 cm, lifts of 0.5-2 cm at 0.3-1.5 m/s (mostly flicks within one sample) 30-80
 degrees from the normal, 0.6 m/s carries, hovers at 1-4 mm after 30 % of the strokes and
-1 mm of 8 Hz tremor. Seeds: 300-323 (A), 500-515 (S), 700-723 (B). ``--seconds 60`` writes the same
+1 mm of 8 Hz tremor. Set D (to choose on where hand c matters; set B stays a check): 16
+sessions over set A's objects with hands a, b and c. Seeds: 300-323 (A), 500-515 (S), 700-723
+(B), 800-815 (D). ``--seconds 60`` writes the same
 draws as 60 s sessions, named ``..._T60_...``, which ``bench_validation.py`` holds to the
 60 s floor (F >= 0.85, or within 0.02 of the oracle). Each bag is written with
 ``simulate_session``; its truth goes beside it as ``<name>_truth.npz`` (``surface``,
@@ -64,6 +66,8 @@ SETS = {
     'S': (5, 16, ('duck:0.45', 'animal:0.4', 'cup:0.6', 'duck:0.45'), (HAND_A, HAND_B)),
     'B': (7, 24, ('large', 'box', 'plate', 'rod', 'duck:0.8', 'animal:0.7', 'cup:1.3',
                   'bottle', 'mug', 'cat', 'duck', 'animal'), (HAND_A, HAND_B, HAND_C)),
+    'D': (8, 16, ('cat', 'cup', 'animal', 'duck', 'bottle', 'mug', 'plate', 'box'),
+          (HAND_A, HAND_B, HAND_C)),
 }
 
 
