@@ -168,6 +168,8 @@ def test_a_set_of_our_own_hands_is_written_in_the_validation_format_and_scored(w
     assert 0 < missed < 100 and sum(parts) == pytest.approx(missed, abs=0.25)
     assert re.search(r'^recall lost over the set: ([\d.]+)% of the explored surface; of it: '
                      r'untouched \d+%', scored.stdout, re.M), scored.stdout
+    # our own hands' sessions are counted by hand too (the name's last letter)
+    assert re.search(rf'^by hand: {name[-1]} [01] of 1$', scored.stdout, re.M), scored.stdout
     precision, oracle, floor = float(rows[0][2]), float(rows[0][6]), float(rows[0][7])
     assert 0.5 < precision <= 1.0 and 0.5 < oracle <= 1.0
     assert floor == pytest.approx(min(0.85, oracle - 0.02), abs=0.0011)

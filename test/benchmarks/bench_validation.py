@@ -13,9 +13,10 @@ it: precision, the share of occupied cell centres within 5 mm of the true surfac
 the share of the explored surface (surface samples within 1 cm of a true contact) within
 5 mm of an occupied centre; F, their harmonic mean; stray cells, occupied centres more than
 5 mm off the surface. The oracle marks exactly the cells holding a true contact.
-``--losses`` adds, under each session, where its lost recall went (``map_metrics``' line:
-``map_quality.touch_recall_losses``), and for the whole set the same split of every missed
-surface sample.
+Sessions of our own hands (``hand_sessions.py``: the name ends in the hand's letter) are
+also counted by hand. ``--losses`` adds, under each session, where its lost recall went
+(``map_metrics``' line: ``map_quality.touch_recall_losses``), and for the whole set the same
+split of every missed surface sample.
 
 Targets (issue: held-out touch map): precision >= 0.97; F >= 0.9 at 30 and 240 Hz and at
 15 Hz up to 10 cm/s (0.85 at 15 Hz and 15 cm/s), or, where the session touched too little of
@@ -53,6 +54,7 @@ BIN = Path(sys.executable).parent
 FOLDER = WORKSPACE.parent / 'shared' / 'data' / 'validation_sessions'
 EXPLORED_RADIUS = CONTACT_TRUTH_EXPLORED   # the folder's README: within 1 cm of a true contact
 NAME = re.compile(r'_v(?P<speed>[\d.]+)_r(?P<rate>[\d.]+)_T(?P<seconds>[\d.]+)_s\d+$')
+HAND = re.compile(r'_s\d+(?P<hand>[a-z])$')   # our own hands' sessions (hand_sessions.py)
 
 
 def f_target(rate: float, speed: float, seconds: float) -> float:
@@ -137,6 +139,7 @@ def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
           f'{"floor":>6s}  targets')
     started = time.monotonic()
     met = 0
+    by_hand: dict[str, list[int]] = {}      # hand -> [met, sessions]
     kinds = ('untouched', 'under_one_touch', 'unconfirmed', 'taken_by_rules')
     lost = dict.fromkeys(('explored_samples', 'missed', *kinds), 0.0)   # samples, summed
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
@@ -146,6 +149,11 @@ def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
             share = r['strays'] / max(r['occupied'], 1)
             ok = meets_targets(r['P'], r['F'], r['floor'], share)
             met += ok
+            hand = HAND.search(bag.name)
+            if hand:
+                counts = by_hand.setdefault(hand['hand'], [0, 0])
+                counts[0] += ok
+                counts[1] += 1
             print(f'{bag.name:32s} {r["F"]:6.3f} {r["P"]:6.3f} {r["R"]:6.3f} '
                   f'{r["strays"]:4d} {share:5.1%} {r["oracle_F"]:8.3f} {r["floor"]:6.3f}  '
                   f'{"met" if ok else "NOT met"}', flush=True)
@@ -158,6 +166,9 @@ def run(bags: list[Path], args: argparse.Namespace, output: Path) -> int:
                                                 else losses['explored_samples'])
     print(f'\nsummary: targets met on {met} of {len(bags)} (precision >= 0.97, F >= floor, stray '
           f'cells <= 1%); {time.monotonic() - started:.0f} s')
+    if by_hand:
+        print('by hand: ' + ', '.join(f'{hand} {ok} of {count}'
+                                      for hand, (ok, count) in sorted(by_hand.items())))
     if args.losses and lost['missed'] > 0:
         print(f'recall lost over the set: {lost["missed"] / lost["explored_samples"]:.1%} of the '
               'explored surface; of it: '
