@@ -20,9 +20,9 @@ strokes of 2-8 cm, lifts of 0.5-2 cm at 0.3-1.5 m/s (mostly flicks within one sa
 degrees from the normal, 0.6 m/s carries, hovers at 1-4 mm after 30 % of the strokes and
 1 mm of 8 Hz tremor. Set D (to choose on where hand c matters; set B stays a check): 16
 sessions over set A's objects with hands a, b and c. Seeds: 300-323 (A), 500-515 (S), 700-723
-(B), 800-815 (D). ``--seconds 60`` writes the same
-draws as 60 s sessions, named ``..._T60_...``, which ``bench_validation.py`` holds to the
-60 s floor (F >= 0.85, or within 0.02 of the oracle). Each bag is written with
+(B), 800-815 (D). ``--seconds 60`` writes the same draws as 60 s sessions, named
+``..._T60_...``, which ``bench_validation.py`` holds to the 60 s floor (F >= 0.85, or within
+0.02 of the oracle). Each bag is written with
 ``simulate_session``; its truth goes beside it as ``<name>_truth.npz`` (``surface``,
 ``contacts``, ``contact_t``, ``mode``, ``rate``, ``seconds``, ``speed_cms``) in the map's
 frame. A session already written is kept.
